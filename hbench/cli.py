@@ -1,0 +1,107 @@
+"""The ``hbench`` command line.
+
+Exit status: 0 on success; 2 with a one-line message on stderr (no traceback) for bad input or
+configuration; 1 for an internal error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Callable, Sequence
+
+from hbench.errors import InputError
+
+Command = Callable[[argparse.Namespace], int]
+
+
+def _cmd_plugins(args: argparse.Namespace) -> int:
+    from hbench.plugins import registry
+
+    listing = registry().as_dict()
+    if args.json:
+        json.dump(listing, sys.stdout, indent=2)
+        sys.stdout.write("\n")
+        return 0
+    for kind, entries in listing.items():
+        print(f"{kind.replace('_', ' ')}:")
+        if not entries:
+            print("  (none)")
+        for e in entries:
+            print(f"  {e['name']:<22} {e['source']:<24} {e['object']}")
+    return 0
+
+
+def _cmd_inspect(args: argparse.Namespace) -> int:
+    from hbench.readers import read_record
+
+    rec = read_record(args.record, p=args.p)
+    for notice in rec.meta.get("notices", []):
+        print(f"notice: {notice}", file=sys.stderr)
+    info = {
+        "record": str(args.record),
+        "runs": rec.runs,
+        "p": rec.p,
+        "h": rec.h,
+        "T": rec.T,
+        "n_fast": rec.n_fast,
+        "n_slow": rec.n_slow,
+        "has_r": rec.r is not None,
+    }
+    print(json.dumps(info, indent=2))
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="hbench",
+        description="Blind identification of closed-loop Hammerstein systems: a benchmark suite.",
+    )
+    from hbench import __version__
+
+    parser.add_argument("--version", action="version", version=f"hbench {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    p = sub.add_parser("plugins", help="list registered methods, models and readers")
+    p.add_argument("--json", action="store_true", help="machine-readable listing")
+    p.set_defaults(func=_cmd_plugins)
+
+    p = sub.add_parser("inspect", help="read and validate a record; print its layout")
+    p.add_argument("record", help="CSV/Parquet record (t, x, y[, r]) or a plant log")
+    p.add_argument("--p", type=int, default=None, help="fast-sampling ratio (inferred from x)")
+    p.set_defaults(func=_cmd_inspect)
+
+    for extra in _EXTRA_COMMANDS:
+        extra(sub)
+    return parser
+
+
+#: Functions ``f(subparsers)`` that add further commands (sweep, reproduce, report, diagnose).
+_EXTRA_COMMANDS: list[Callable[[argparse._SubParsersAction], None]] = []
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``hbench`` console script."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 0
+    try:
+        return int(args.func(args) or 0)
+    except InputError as exc:
+        msg = " ".join(str(exc).split())
+        print(f"hbench {args.command}: error: {msg}", file=sys.stderr)
+        return 2
+    except FileNotFoundError as exc:
+        print(f"hbench {args.command}: error: no such file: {exc.filename}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:  # pragma: no cover
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,155 @@
+"""The plugin registry: a pluggy manager over the ``hbench`` entry-point group.
+
+Built-in plugins register through the same entry-point group a third-party package uses, so
+there is one path for everyone. Set ``HBENCH_DISABLE_PLUGINS=name1,name2`` (entry-point names) to
+block a broken plugin.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from functools import cache
+from types import ModuleType
+from typing import Any
+
+import pluggy
+
+from hbench import hookspecs
+from hbench.errors import InputError, PluginNotFoundError
+
+#: Kind of plugin -> hook that registers it.
+KINDS: dict[str, str] = {
+    "identifiers": "register_identifiers",
+    "nonlinearities": "register_nonlinearities",
+    "plants": "register_plants",
+    "controllers": "register_controllers",
+    "noise_models": "register_noise_models",
+    "references": "register_references",
+    "effects": "register_effects",
+    "readers": "register_readers",
+}
+
+
+@dataclass(frozen=True)
+class Entry:
+    """One registered thing: its name, the object, and the plugin (package) it comes from."""
+
+    kind: str
+    name: str
+    obj: Any
+    source: str
+
+
+def _source_of(plugin: object, pm: pluggy.PluginManager) -> str:
+    for plugin_, dist in pm.list_plugin_distinfo():
+        if plugin_ is plugin:
+            return f"{dist.project_name} {dist.version}"
+    name = pm.get_name(plugin) or getattr(plugin, "__name__", repr(plugin))
+    return str(name)
+
+
+def make_manager(load_entrypoints: bool = True) -> pluggy.PluginManager:
+    """A fresh plugin manager with hbench's hookspecs and, by default, every installed plugin."""
+    pm = pluggy.PluginManager("hbench")
+    pm.add_hookspecs(hookspecs)
+    for name in filter(None, os.environ.get("HBENCH_DISABLE_PLUGINS", "").split(",")):
+        pm.set_blocked(name.strip())
+    if load_entrypoints:
+        pm.load_setuptools_entrypoints("hbench")
+    return pm
+
+
+@cache
+def get_manager() -> pluggy.PluginManager:
+    """The process-wide plugin manager (created on first use)."""
+    return make_manager()
+
+
+class Registry:
+    """Everything the registered plugins provide, by kind and name."""
+
+    def __init__(self, pm: pluggy.PluginManager | None = None) -> None:
+        self.pm = pm if pm is not None else get_manager()
+        self._entries: dict[str, dict[str, Entry]] | None = None
+
+    def refresh(self) -> None:
+        """Forget the cached listing (after registering or unregistering a plugin)."""
+        self._entries = None
+
+    @property
+    def entries(self) -> dict[str, dict[str, Entry]]:
+        if self._entries is None:
+            self._entries = self._collect()
+        return self._entries
+
+    def _collect(self) -> dict[str, dict[str, Entry]]:
+        out: dict[str, dict[str, Entry]] = {kind: {} for kind in KINDS}
+        for kind, hook_name in KINDS.items():
+            hook = getattr(self.pm.hook, hook_name)
+            for impl in hook.get_hookimpls():
+                source = _source_of(impl.plugin, self.pm)
+
+                def register(name: str, obj: Any, _kind: str = kind, _src: str = source) -> None:
+                    if name in out[_kind]:
+                        prev = out[_kind][name].source
+                        raise InputError(
+                            f"{_kind[:-1]} {name!r} is registered twice ({prev} and {_src})"
+                        )
+                    out[_kind][name] = Entry(_kind, name, obj, _src)
+
+                impl.function(**{a: register for a in impl.argnames})
+        return out
+
+    def names(self, kind: str) -> list[str]:
+        """Sorted names registered for ``kind``."""
+        return sorted(self.entries[kind])
+
+    def get(self, kind: str, name: str) -> Any:
+        """The object registered as ``name`` for ``kind``; a clear error if there is none."""
+        try:
+            return self.entries[kind][name].obj
+        except KeyError:
+            known = ", ".join(self.names(kind)) or "none"
+            what = kind.replace("_", " ")
+            raise PluginNotFoundError(
+                f"unknown {what[:-1] if what.endswith('s') else what} {name!r} (known: {known})"
+            ) from None
+
+    def as_dict(self) -> dict[str, list[dict[str, str]]]:
+        """A JSON-ready listing: kind -> [{name, source, object}]."""
+        return {
+            kind: [
+                {
+                    "name": e.name,
+                    "source": e.source,
+                    "object": f"{getattr(e.obj, '__module__', '?')}."
+                    f"{getattr(e.obj, '__qualname__', type(e.obj).__name__)}",
+                }
+                for e in sorted(entries.values(), key=lambda e: e.name)
+            ]
+            for kind, entries in self.entries.items()
+        }
+
+
+@cache
+def registry() -> Registry:
+    """The process-wide registry."""
+    return Registry()
+
+
+def get(kind: str, name: str) -> Any:
+    """Shorthand for ``registry().get(kind, name)``."""
+    return registry().get(kind, name)
+
+
+def register_module(module: ModuleType | object, name: str | None = None) -> None:
+    """Register a plugin object at run time (tests, notebooks); refreshes the registry."""
+    get_manager().register(module, name=name)
+    registry().refresh()
+
+
+def unregister_module(module: ModuleType | object) -> None:
+    """Undo :func:`register_module`."""
+    get_manager().unregister(module)
+    registry().refresh()
