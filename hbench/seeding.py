@@ -50,6 +50,33 @@ def spawn_runs(rng: np.random.Generator, runs: int, start: int = 0) -> list[np.r
     ]
 
 
+def run_streams(
+    rng: np.random.Generator, runs: int, names: tuple[str, ...], start: int = 0
+) -> dict[str, list[np.random.Generator]]:
+    """Per-run generators, one independent stream per named use (``"reference"``, ``"noise"``).
+
+    Stream ``names[j]`` of run ``i`` is the child ``(i, j)`` of the parent's ``SeedSequence``, so
+    adding a use, or withholding one (a reference shared by all runs), leaves the others unchanged.
+    """
+    seq = rng.bit_generator.seed_seq
+    if not isinstance(seq, np.random.SeedSequence):  # pragma: no cover
+        raise TypeError("the generator must be seeded through a numpy.random.SeedSequence")
+    bitgen = type(rng.bit_generator)
+    return {
+        name: [
+            np.random.Generator(
+                bitgen(
+                    np.random.SeedSequence(
+                        seq.entropy, spawn_key=(*seq.spawn_key, i, j), pool_size=seq.pool_size
+                    )
+                )
+            )
+            for i in range(start, start + runs)
+        ]
+        for j, name in enumerate(names)
+    }
+
+
 def cell_seed(base_seed: int, axes: Mapping[str, Any]) -> np.random.SeedSequence:
     """A ``SeedSequence`` for one sweep cell, derived from the base seed and the cell's axes.
 
