@@ -11,3 +11,43 @@ def register_nonlinearities(register: Register) -> None:
 
     for cls in nl.BUILTIN:
         register(cls.name, cls)
+
+
+@hookimpl
+def register_plants(register: Register) -> None:
+    from hbench import plants
+
+    for name, factory in plants.BUILTIN.items():
+        register(name, factory)
+
+
+@hookimpl
+def register_controllers(register: Register) -> None:
+    from hbench import controllers
+
+    for cls in controllers.BUILTIN:
+        register(cls.name, cls)
+
+
+@hookimpl
+def register_noise_models(register: Register) -> None:
+    from hbench import noise
+
+    for cls in noise.BUILTIN:
+        register(cls.name, cls)
+
+
+@hookimpl
+def register_references(register: Register) -> None:
+    from hbench import signals
+
+    for cls in signals.BUILTIN:
+        register(cls.name, cls)
+
+
+@hookimpl
+def register_readers(register: Register) -> None:
+    from hbench import readers
+
+    for reader in readers.READERS:
+        register(reader.name, reader)

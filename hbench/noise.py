@@ -6,6 +6,7 @@ The level is set by the scenario, either as ``sigma2`` (variance of ``e``) or as
 
 from __future__ import annotations
 
+import warnings
 from typing import Any, ClassVar
 
 import numpy as np
@@ -119,7 +120,10 @@ class ContinuousFilter(NoiseModel):
     def filter(self, plant: DiscretePlant) -> tuple[np.ndarray, np.ndarray]:
         h = plant.h
         if h not in self._cache:
-            c, d, _ = signal.cont2discrete((self.num, self.den), h, method=self.method)
+            with warnings.catch_warnings():
+                # ZOH leaves a q^0 numerator coefficient at rounding level: trimmed just below
+                warnings.simplefilter("ignore", signal.BadCoefficients)
+                c, d, _ = signal.cont2discrete((self.num, self.den), h, method=self.method)
             c = np.atleast_1d(np.squeeze(c))
             c[np.abs(c) < 1e-14 * np.abs(c).max()] = 0.0
             self._cache[h] = (c / d[0], np.asarray(d, dtype=float) / d[0])

@@ -1,1 +1,89 @@
-"""placeholder"""
+"""Bai & Fu (2002), "A blind approach to Hammerstein model identification", IEEE Trans. Signal
+Processing 50(7): the noise-free design, as this suite implements it.
+
+From the source (as summarised in Wang et al. 2007 and ``shared/docs/methods-and-models.md``):
+A from the quiet-phase equations by ordinary least squares (no noise compensation, their setting
+is noise-free); B from the active phases; the inner signal by the direct inverse
+``A(q)/B(q) y`` down-sampled by p (Table 5's F_INV), or a Bezout-identity inverse when B is not
+minimum phase. Reconstructed here: B as the least-squares ratio of ``Delta w(kp + l)`` to
+``Delta w(kp + 1)``; the Bezout inverse as the minimum-norm degree-0 combiner of the polyphase
+channels (exact because every channel of eq. 25 has order one); the structure selection of
+:func:`hbench.identifiers.select_structure` with the OLS denominator (Bai & Fu assume the orders).
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import numpy as np
+
+from hbench import polyphase as pp
+from hbench.errors import InputError
+from hbench.hookspecs import Register, hookimpl
+from hbench.identifiers import Estimate, IdentifyOptions, Identifier, SelectionRule, blind_fit
+from hbench.records import Record, Truth
+
+INVERSES = ("auto", "direct", "bezout", "refuse")
+
+
+def inverse_inner(choice: str):
+    """An ``inner`` step for :func:`hbench.identifiers.blind_fit`: direct or Bezout inverse.
+
+    ``auto`` uses the direct inverse when every zero of B is inside the unit circle and the
+    Bezout combiner otherwise; ``refuse`` marks non-minimum-phase runs with nan (no estimate).
+    """
+
+    def inner(y, w, a, b, p, tau, t_min):
+        sys = pp.simo_system(w, p, tau, t_min)
+        n_first = sys.n0 - 1
+        M = sys.W.shape[1] + 1
+        nmp = np.array([np.any(np.abs(np.roots(bb)) >= 1.0) if bb.size > 1 else False
+                        for bb in b])
+        use_direct = (~nmp) if choice in ("auto", "refuse") else np.full(b.shape[0], choice == "direct")
+        U = np.full((b.shape[0], M), np.nan)
+        if use_direct.any():
+            U[use_direct] = pp.inner_signal_direct(y[use_direct], a[use_direct], b[use_direct], p,
+                                                   tau, n_first, M)
+        rest = ~use_direct
+        if rest.any() and choice != "refuse":
+            h0, h1 = pp.simo_channels(b[rest], p)
+            U[rest] = pp.inner_signal_bezout(sys, h0, h1)[:, : M]
+        label = ("direct" if use_direct.all() else
+                 "bezout" if not use_direct.any() and choice != "refuse" else
+                 "refused-nmp" if choice == "refuse" and not use_direct.any() else "mixed")
+        return U, n_first, label
+
+    return inner
+
+
+class BaiFu(Identifier):
+    """Bai & Fu (2002) direct-inverse baseline (OLS A, ratio B, direct or Bezout inverse)."""
+
+    name: ClassVar[str] = "bai-fu"
+    summary: ClassVar[str] = "Bai & Fu 2002: OLS on quiet phases, direct inverse A/B (F_INV)"
+
+    def __init__(self, inverse: str = "auto", pooled: bool = True) -> None:
+        if inverse not in INVERSES:
+            raise InputError(f"bai-fu inverse must be one of {', '.join(INVERSES)}, got {inverse!r}")
+        self.inverse, self.pooled = inverse, bool(pooled)
+
+    def options(self) -> dict[str, Any]:
+        return {"inverse": self.inverse, "pooled": self.pooled}
+
+    def identify(self, record: Record, options: IdentifyOptions,
+                 truth: Truth | None = None) -> Estimate:
+        def denominator(reg, idx):
+            theta, s2, _ = pp.ols(reg)
+            return theta, s2 / 2.0
+
+        def numerator(dw, tau, nb, sigma2, idx):
+            return pp.b_ols(dw, record.p, tau, nb, t_min=int(np.argmin(np.isnan(dw[0]))))
+
+        return blind_fit(self.name, record, options, denominator=denominator,
+                         numerator=numerator, inner=inverse_inner(self.inverse),
+                         pooled=self.pooled, rule=SelectionRule(), info=self.options())
+
+
+@hookimpl
+def register_identifiers(register: Register) -> None:
+    register(BaiFu.name, BaiFu)

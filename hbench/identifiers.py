@@ -1,0 +1,415 @@
+"""The identifier interface and the structure selection every blind method shares.
+
+An identifier receives a :class:`~hbench.records.Record` (``y`` always; ``x`` and ``r`` only if it
+declares it needs them) and :class:`IdentifyOptions` (what the user knows a priori: p from the
+record, the bound ``n0_b``, the ``na`` range, the fractional-delay range and the known multiple of
+p in the delay, assumption A3). It returns an :class:`Estimate`. It never sees the truth; the
+oracle is the one declared exception (``needs = {"truth"}``).
+
+The structure selection (Section 6, steps (i)-(iii)) is shared: :func:`select_structure`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+
+from hbench import polyphase as pp
+from hbench.errors import InputError
+from hbench.records import Record, Truth
+
+
+@dataclass(frozen=True)
+class IdentifyOptions:
+    """Prior knowledge given to every method (the paper's assumptions A2, A3).
+
+    Parameters
+    ----------
+    nb_max : int
+        Upper bound ``n0_b`` of the numerator order (A2 requires ``p >= n0_b + 1``).
+    na_range : tuple of int
+        Candidate denominator orders (inclusive range ``(lo, hi)``).
+    tau_range : tuple of int or None
+        Candidate fractional delays ``(lo, hi)`` inclusive, within ``[0, p)``; None for all.
+    delay_multiple : int
+        The delay's integer multiple of p, known a priori (A3); aligns U with x.
+    na : int or None
+        Fix ``na`` instead of selecting it.
+    tau : int or None
+        Fix the fractional delay instead of selecting it.
+    nb : int or None
+        Fix ``nb`` instead of selecting it.
+    """
+
+    nb_max: int = 4
+    na_range: tuple[int, int] = (1, 5)
+    tau_range: tuple[int, int] | None = None
+    delay_multiple: int = 0
+    na: int | None = None
+    tau: int | None = None
+    nb: int | None = None
+
+    def __post_init__(self) -> None:
+        lo, hi = self.na_range
+        if not 1 <= lo <= hi:
+            raise InputError(f"na_range must satisfy 1 <= lo <= hi, got {self.na_range}")
+        if self.nb_max < 1:
+            raise InputError(f"nb_max (n0_b) must be >= 1, got {self.nb_max}")
+        if self.delay_multiple < 0:
+            raise InputError(f"delay_multiple must be >= 0, got {self.delay_multiple}")
+
+
+@dataclass
+class Estimate:
+    """A method's estimate for a batch of runs.
+
+    Attributes
+    ----------
+    method : str
+        Registered name of the method.
+    a : ndarray, shape (runs, na_max)
+        ``a1 .. a_na`` per run, zero-padded to the largest selected order.
+    b : ndarray, shape (runs, nb_max)
+        ``b1 .. b_nb`` per run with ``b1 = 1`` (the paper's normalisation), zero-padded.
+    na, nb, tau : ndarray of int, shape (runs,)
+        Selected orders and fractional delay.
+    sigma2 : ndarray, shape (runs,)
+        Noise-variance estimate (``nan`` where the method has none).
+    U : ndarray, shape (runs, K)
+        Slow-rate inner signal aligned with ``x`` (``U[:, n]`` belongs with ``x[:, n]``), up to the
+        gain ambiguity (b1 = 1); ``nan`` where the record does not determine it.
+    identifiable : ndarray of bool, shape (runs,)
+        False where an assumption fails (A2, A4); ``reason`` says which.
+    reason : list of str
+        Per run: empty, or why the run is not identifiable / failed.
+    criteria : dict of ndarray
+        Selection tables: ``V_lsm``/``V_iv`` (runs, n_na, p) of eq. (19) over (na, shift),
+        ``var_dw`` (runs, p) (Table 2), ...
+    info : dict
+        Method options and notes (e.g. which inverse was used).
+    """
+
+    method: str
+    a: np.ndarray
+    b: np.ndarray
+    na: np.ndarray
+    nb: np.ndarray
+    tau: np.ndarray
+    sigma2: np.ndarray
+    U: np.ndarray
+    identifiable: np.ndarray
+    reason: list[str]
+    criteria: dict[str, np.ndarray] = field(default_factory=dict)
+    info: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def runs(self) -> int:
+        return self.U.shape[0]
+
+    def params(self) -> dict[str, np.ndarray]:
+        """``a1, a2, ..., b2, b3, ...`` as arrays over runs (``nan`` beyond a run's order)."""
+        out: dict[str, np.ndarray] = {}
+        for i in range(self.a.shape[1]):
+            out[f"a{i + 1}"] = np.where(self.na > i, self.a[:, i], np.nan)
+        for j in range(1, self.b.shape[1]):
+            out[f"b{j + 1}"] = np.where(self.nb > j, self.b[:, j], np.nan)
+        return out
+
+    @property
+    def den(self) -> np.ndarray:
+        """``[1, a1, ...]`` per run (scipy.signal convention)."""
+        return np.concatenate([np.ones((self.runs, 1)), self.a], axis=1)
+
+
+class Identifier:
+    """Base class of blind identification methods (one plugin each).
+
+    Subclasses set ``name``, ``needs`` (subset of ``{"x", "r", "truth"}``), ``summary``,
+    ``reconstruction`` (True where the algorithm is this project's reconstruction of a method
+    whose source is not available: reports say so), and ``test_options`` (tiny options for the
+    conformance suite), and implement :meth:`identify`.
+    """
+
+    name: ClassVar[str] = ""
+    needs: ClassVar[frozenset[str]] = frozenset()
+    summary: ClassVar[str] = ""
+    reconstruction: ClassVar[bool] = False
+    test_options: ClassVar[dict[str, Any]] = {}
+
+    def __init__(self, **options: Any) -> None:
+        if options:
+            raise InputError(f"method {self.name!r} takes no options, got {sorted(options)}")
+
+    def identify(self, record: Record, options: IdentifyOptions,
+                 truth: Truth | None = None) -> Estimate:
+        """Estimate A, B, the structure and the inner signal from ``record``."""
+        raise NotImplementedError
+
+    def options(self) -> dict[str, Any]:
+        """The method's own options (for provenance)."""
+        return {}
+
+
+# --- structure selection (Section 6, steps (i)-(iii)) -------------------------------------------
+
+
+@dataclass(frozen=True)
+class SelectionRule:
+    """The stated, automatic version of the paper's visual selection (Section 3.4, Section 6).
+
+    * ``na``: the smallest order whose best ``V(na, shift)`` is within ``1 + tol_na`` of the best
+      over all orders (parsimony with a tolerance).
+    * ``tau``: at that ``na``, shifts whose ``V`` is within ``1 + tol_tau`` of the smallest are
+      "quiet"; tau is the last shift of the longest cyclic run of quiet shifts (Table 3's remark:
+      a run 4, 0, 1 ends at 1).
+    * ``nb``: phases whose ``Var{Delta w^(l)}`` exceeds ``1 + tol_nb`` times the quiet level (the
+      mean of the ``p - n0_b`` smallest) are active; nb is the last active phase within ``n0_b``.
+
+    ``floor`` guards noise-free data: values below ``floor`` times the signal's mean square count
+    as equal.
+    """
+
+    tol_na: float = 0.05
+    tol_tau: float = 0.25
+    tol_nb: float = 0.5
+    floor: float = 1e-18
+
+
+@dataclass(frozen=True)
+class Structure:
+    """Per-run selected structure and the tables it was decided from."""
+
+    na: np.ndarray
+    tau: np.ndarray
+    nb: np.ndarray
+    V: np.ndarray  # (R, n_na, p) criterion over (na, shift)
+    var_dw: np.ndarray  # (R, p)
+    na_values: np.ndarray
+
+
+def check_identifiable(p: int, options: IdentifyOptions) -> str:
+    """Empty string, or why assumption A2 fails for this p."""
+    if p < options.nb_max + 1:
+        return (f"not identifiable: p = {p} < n0_b + 1 = {options.nb_max + 1} "
+                "(assumption A2; Bai, Li & Dasgupta 2002)")
+    return ""
+
+
+def _select_na_tau(V: np.ndarray, na_values: np.ndarray, rule: SelectionRule,
+                   scale: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    R, n_na, p = V.shape
+    floor = (rule.floor * scale)[:, None]
+    best_per_na = V.min(axis=2)  # (R, n_na)
+    best = best_per_na.min(axis=1, keepdims=True)
+    ok = best_per_na <= (1 + rule.tol_na) * best + floor
+    ia = np.argmax(ok, axis=1)
+    na = na_values[ia]
+    Vna = V[np.arange(R), ia]  # (R, p)
+    quiet = Vna <= (1 + rule.tol_tau) * Vna.min(axis=1, keepdims=True) + floor
+    tau = np.empty(R, dtype=int)
+    for r in range(R):  # p is small; cyclic runs per run
+        q = quiet[r]
+        if q.all():
+            tau[r] = p - 1
+            continue
+        best_len, best_end = -1, 0
+        for end in range(p):
+            if q[end] and not q[(end + 1) % p]:
+                length = 0
+                while length < p and q[(end - length) % p]:
+                    length += 1
+                if length > best_len:
+                    best_len, best_end = length, end
+        tau[r] = best_end
+    return na, tau
+
+
+def _select_nb(var_dw: np.ndarray, nb_max: int, rule: SelectionRule,
+               scale: np.ndarray) -> np.ndarray:
+    R, p = var_dw.shape
+    n_quiet = max(p - nb_max, 1)
+    level = np.sort(var_dw, axis=1)[:, :n_quiet].mean(axis=1, keepdims=True)
+    active = var_dw > (1 + rule.tol_nb) * level + (rule.floor * scale)[:, None]
+    active[:, nb_max:] = False
+    last = np.where(active.any(axis=1), p - 1 - np.argmax(active[:, ::-1], axis=1), 0)
+    return np.maximum(last + 1, 1)
+
+
+#: ``fit(reg, idx) -> (theta, sigma2)``: a denominator estimate on the runs ``idx`` of the batch.
+DenominatorFit = Callable[[pp.QuietRegression, np.ndarray], tuple[np.ndarray, np.ndarray]]
+
+
+def select_structure(
+    y: np.ndarray,
+    p: int,
+    options: IdentifyOptions,
+    fit: DenominatorFit,
+    rule: SelectionRule = SelectionRule(),
+    pooled: bool = False,
+) -> Structure:
+    """Steps (i)-(iii) of Section 6 for a batch of runs.
+
+    (i) ``V^(p)(na, shift)`` of eq. (19) with ``theta`` from ``fit`` (bias-compensated LSM or IV)
+    at phase ``l = p`` under each shift; ``na`` and ``tau`` by :class:`SelectionRule`.
+    (ii)-(iii) ``A`` with ``nb = n0_b``, ``w = A(q) y``, ``Var{Delta w^(l)}``, ``nb``.
+    """
+    R = y.shape[0]
+    dy = pp.delta(y)
+    scale = np.nanmean(dy**2, axis=1)
+    na_lo, na_hi = options.na_range
+    na_values = np.arange(na_lo, na_hi + 1) if options.na is None else np.array([options.na])
+    shifts = list(range(p))
+    if options.tau_range is not None:
+        lo, hi = options.tau_range
+        if not 0 <= lo <= hi < p:
+            raise InputError(f"tau_range must lie within [0, p) = [0, {p}), got {options.tau_range}")
+    V = np.empty((R, na_values.size, p))
+    all_runs = np.arange(R)
+    for i, na in enumerate(na_values):
+        for s in shifts:
+            reg = pp.quiet_regression(dy, p, int(na), (p,), s)
+            V[:, i, s] = pp.aic(reg, fit(reg, all_runs)[0])
+    if options.tau_range is not None:
+        lo, hi = options.tau_range
+        mask = np.zeros(p, bool)
+        mask[lo : hi + 1] = True
+        V_sel = np.where(mask[None, None, :], V, np.inf)
+    else:
+        V_sel = V
+    na, tau = _select_na_tau(V_sel, na_values, rule, scale)
+    if options.tau is not None:
+        tau = np.full(R, int(options.tau))
+    # (ii)-(iii): A with nb = n0_b, then Var of Delta w per phase
+    var_dw = np.empty((R, p))
+    for key in set(zip(na.tolist(), tau.tolist(), strict=True)):
+        idx = np.flatnonzero((na == key[0]) & (tau == key[1]))
+        phases = tuple(range(options.nb_max + 1, p + 1)) if pooled else (p,)
+        reg = pp.quiet_regression(dy[idx], p, key[0], phases, key[1])
+        a = np.concatenate([np.ones((idx.size, 1)), fit(reg, idx)[0]], axis=1)
+        dw = pp.delta(pp.filtered_output(y[idx], a))
+        var_dw[idx] = pp.phase_variances(dw, p, key[1], t_min=key[0] + 1)
+    nb = _select_nb(var_dw, options.nb_max, rule, scale) if options.nb is None else np.full(
+        R, int(options.nb))
+    return Structure(na=na, tau=tau, nb=nb, V=V, var_dw=var_dw, na_values=na_values)
+
+
+def groups(*keys: np.ndarray) -> list[tuple[tuple[int, ...], np.ndarray]]:
+    """Runs grouped by equal keys: ``[((k1, k2, ..), indices), ...]``."""
+    stacked = np.stack(keys, axis=1)
+    uniq, inv = np.unique(stacked, axis=0, return_inverse=True)
+    return [(tuple(int(v) for v in u), np.flatnonzero(inv.ravel() == i)) for i, u in enumerate(uniq)]
+
+
+def check_a4(b: np.ndarray, tol: float = 1e-6) -> np.ndarray:
+    """True where ``B(1) = sum b`` is (numerically) zero: assumption A4 fails."""
+    return np.abs(b.sum(axis=1)) <= tol * np.abs(b).sum(axis=1)
+
+
+def empty_estimate(method: str, record: Record, reason: str, **info: Any) -> Estimate:
+    """An all-nan estimate flagged not identifiable (never an exception that stops a sweep)."""
+    R, K = record.runs, record.n_slow
+    return Estimate(
+        method=method, a=np.full((R, 1), np.nan), b=np.full((R, 1), np.nan),
+        na=np.zeros(R, int), nb=np.zeros(R, int), tau=np.zeros(R, int),
+        sigma2=np.full(R, np.nan), U=np.full((R, K), np.nan),
+        identifiable=np.zeros(R, bool), reason=[reason] * R, info=dict(info),
+    )
+
+
+def pad(parts: Sequence[np.ndarray], width: int) -> np.ndarray:
+    """Zero-pad 2-D arrays on the right to ``width`` columns."""
+    return np.stack([np.pad(p, (0, width - p.size)) for p in parts])
+
+
+def identify(method: Identifier, record: Record, options: IdentifyOptions,
+             truth: Truth | None = None) -> Estimate:
+    """Run ``method`` on ``record`` showing it only what it declared it needs."""
+    rec = record.withhold(method.needs)
+    missing = [s for s in ("x", "r") if s in method.needs and getattr(rec, s) is None]
+    if missing:
+        raise InputError(f"method {method.name!r} needs {', '.join(missing)}, absent from the record")
+    if "truth" in method.needs and truth is None:
+        raise InputError(f"method {method.name!r} (an oracle) needs the simulation's truth")
+    return method.identify(rec, options, truth if "truth" in method.needs else None)
+
+
+#: ``numerator(dw, tau, nb, sigma2, idx) -> b`` of shape ``(len(idx), nb)`` with ``b1 = 1``.
+NumeratorFit = Callable[[np.ndarray, int, int, np.ndarray, np.ndarray], np.ndarray]
+#: ``inner(y, w, a, b, tau, idx) -> (U~, n_first, label)``: the inner signal on the shifted grid.
+InnerSignal = Callable[..., tuple[np.ndarray, int, str]]
+
+
+def inner_ls(y: np.ndarray, w: np.ndarray, a: np.ndarray, b: np.ndarray, p: int, tau: int,
+             t_min: int) -> tuple[np.ndarray, int, str]:
+    """The paper's inner-signal estimate, eq. (27), solved in O(K) (tridiagonal)."""
+    sys = pp.simo_system(w, p, tau, t_min)
+    h0, h1 = pp.simo_channels(b, p)
+    return pp.inner_signal_ls(sys, h0, h1), sys.n0 - 1, "ls27"
+
+
+def blind_fit(
+    method: str,
+    record: Record,
+    options: IdentifyOptions,
+    *,
+    denominator: DenominatorFit,
+    numerator: NumeratorFit,
+    inner: InnerSignal = inner_ls,
+    pooled: bool = False,
+    rule: SelectionRule = SelectionRule(),
+    info: dict[str, Any] | None = None,
+) -> Estimate:
+    """The blind route shared by the methods: structure, A, B, A4 check, U, alignment with x.
+
+    Runs that select the same (na, tau, nb) are processed together, batched. ``pooled`` takes
+    the denominator from all quiet phases ``nb + 1 .. p`` instead of phase ``p`` alone.
+    """
+    p, R, K = record.p, record.runs, record.n_slow
+    why = check_identifiable(p, options)
+    if why:
+        return empty_estimate(method, record, why, **(info or {}))
+    y = record.y
+    st = select_structure(y, p, options, denominator, rule, pooled)
+    na_max, nb_max = int(st.na.max()), int(st.nb.max())
+    a = np.zeros((R, na_max))
+    b = np.zeros((R, nb_max))
+    sigma2 = np.full(R, np.nan)
+    U = np.full((R, K), np.nan)
+    ok = np.ones(R, bool)
+    reason = [""] * R
+    inverse: dict[str, int] = {}
+    for (na, tau, nb), idx in groups(st.na, st.tau, st.nb):
+        dy = pp.delta(y[idx])
+        phases = tuple(range(nb + 1, p + 1)) if pooled else (p,)
+        reg = pp.quiet_regression(dy, p, na, phases, tau)
+        theta, s2 = denominator(reg, idx)
+        a[idx, :na] = theta
+        sigma2[idx] = s2
+        den = np.concatenate([np.ones((idx.size, 1)), theta], axis=1)
+        w = pp.filtered_output(y[idx], den)
+        dw = pp.delta(w)
+        bb = numerator(dw, tau, nb, s2, idx)
+        b[idx, :nb] = bb
+        bad = check_a4(bb)
+        for j in idx[bad]:
+            ok[j] = False
+            reason[j] = ("not identifiable: estimated B(1) = 0 (assumption A4): the inner signal "
+                         "is not unique")
+        good = idx[~bad]
+        if good.size:
+            sel = ~bad
+            Ut, n_first, label = inner(y[good], w[sel], den[sel], bb[sel], p, tau, na)
+            U[good] = pp.align(Ut, n_first, options.delay_multiple, K)
+            inverse[label] = inverse.get(label, 0) + good.size
+    out_info = dict(info or {})
+    out_info["inverse"] = inverse
+    out_info["pooled"] = pooled
+    return Estimate(
+        method=method, a=a, b=b, na=st.na, nb=st.nb, tau=st.tau, sigma2=sigma2, U=U,
+        identifiable=ok, reason=reason,
+        criteria={"V": st.V, "var_dw": st.var_dw, "na_values": st.na_values},
+        info=out_info,
+    )

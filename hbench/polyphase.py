@@ -1,0 +1,386 @@
+"""Polyphase numerics shared by every blind method (Wang et al., Sections 3 and 4).
+
+Indexing convention, used everywhere in hbench: fast sample ``t`` of the record; the inner signal
+changes only at ``t = k p`` (property (1)). A candidate shift ``s`` in ``[0, p)`` is the fractional
+delay tau; the paper shifts the output, ``y~(t) = y(t + s)``, and speaks of phase ``l = 1 .. p`` of
+period ``k``: here that is the record's sample ``t = k p + l + s``. With the right shift, phase l of
+``Delta w = Delta A(q) y`` carries ``b_l Delta U(k)`` for ``l = 1 .. nb`` ("active", eq. 11) and only
+noise for ``l = nb + 1 .. p`` ("quiet", eqs. 10, 12).
+
+All functions are batched over runs (arrays ``(runs, ...)``, time last) for runs that share one
+structure (na, nb, tau); callers group runs by structure.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import signal
+
+_RCOND = 1e-12
+
+
+# --- indexing ----------------------------------------------------------------------------------
+
+
+def phase_times(N: int, p: int, l: int, shift: int, t_min: int, k_min: int = 0) -> np.ndarray:
+    """Slow indices ``k`` whose sample ``t = k p + l + shift`` satisfies ``t_min <= t < N``."""
+    k0 = max(k_min, -(-(t_min - l - shift) // p))
+    k1 = (N - 1 - l - shift) // p
+    return np.arange(k0, k1 + 1) if k1 >= k0 else np.zeros(0, dtype=int)
+
+
+def delta(z: np.ndarray) -> np.ndarray:
+    """``Delta z(t) = z(t) - z(t-1)`` with ``Delta z(0) = nan`` (same length, time last)."""
+    out = np.empty_like(z, dtype=float)
+    out[..., 0] = np.nan
+    np.subtract(z[..., 1:], z[..., :-1], out=out[..., 1:])
+    return out
+
+
+def gather(z: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """``z[:, t]`` for an integer index array ``t`` of any shape."""
+    return z[:, t]
+
+
+# --- denominator: quiet-phase regressions (eqs. 13-15, 19, 20) ---------------------------------
+
+
+@dataclass(frozen=True)
+class QuietRegression:
+    """The quiet-phase equations (13), stacked over the requested phases.
+
+    ``target[r, j] = Delta y(t_j)``, ``phi[r, j, :] = -[Delta y(t_j - 1) .. Delta y(t_j - na)]``;
+    ``k[j]`` is the slow index of row ``j`` (for instruments).
+    """
+
+    target: np.ndarray
+    phi: np.ndarray
+    k: np.ndarray
+
+    @property
+    def n(self) -> int:
+        return self.target.shape[1]
+
+    def moments(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(Rm, f)``: ``(1/n) sum phi phi^T`` and ``(1/n) sum phi Delta y``."""
+        Rm = np.einsum("rji,rjk->rik", self.phi, self.phi) / self.n
+        f = np.einsum("rji,rj->ri", self.phi, self.target) / self.n
+        return Rm, f
+
+    def residual_ms(self, theta: np.ndarray) -> np.ndarray:
+        """``(1/n) sum (Delta y - phi^T theta)^2`` per run."""
+        res = self.target - np.einsum("rji,ri->rj", self.phi, theta)
+        return np.mean(res**2, axis=1)
+
+
+def quiet_regression(
+    dy: np.ndarray, p: int, na: int, phases: tuple[int, ...] | list[int], shift: int
+) -> QuietRegression:
+    """Rows of eq. (13) at the given phases (1-based ``l``) under ``shift``.
+
+    ``dy`` is ``delta(y)``; rows need ``t - na >= 1`` so every regressor is defined.
+    """
+    N = dy.shape[1]
+    ts, ks = [], []
+    for l in phases:
+        k = phase_times(N, p, l, shift, t_min=na + 1)
+        ks.append(k)
+        ts.append(k * p + l + shift)
+    t = np.concatenate(ts)
+    lags = np.arange(0, na + 1)
+    block = dy[:, t[:, None] - lags[None, :]]
+    return QuietRegression(target=block[..., 0], phi=-block[..., 1:], k=np.concatenate(ks))
+
+
+def _pinv_sym(Rm: np.ndarray) -> np.ndarray:
+    return np.linalg.pinv(Rm, rcond=_RCOND, hermitian=True)
+
+
+def ols(reg: QuietRegression) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Ordinary LS of (13): ``(theta, residual mean square, g11)``; biased under noise."""
+    Rm, f = reg.moments()
+    Rinv = _pinv_sym(Rm)
+    theta = np.einsum("rik,rk->ri", Rinv, f)
+    return theta, reg.residual_ms(theta), Rinv[:, 0, 0]
+
+
+def noise_variance(s2: np.ndarray, g11: np.ndarray) -> np.ndarray:
+    """Eq. (15), corrected: sigma^2 from the OLS residual mean square ``s2`` and ``g11``.
+
+    The OLS residual mean square tends to ``2 sigma^2 - g11 sigma^4`` (not ``sigma^2 - ...`` as the
+    extraction prints), so sigma^2 is the root of ``g11 x^2 - 2 x + s2 = 0`` that tends to ``s2/2``
+    as ``g11 -> 0``: ``x = (1 - sqrt(1 - g11 s2)) / g11``, written stably as
+    ``s2 / (1 + sqrt(1 - g11 s2))``. A negative discriminant (a noise realisation far from the
+    asymptote) is clipped to zero, giving ``x = 1/g11``.
+    """
+    disc = np.clip(1.0 - g11 * s2, 0.0, None)
+    return s2 / (1.0 + np.sqrt(disc))
+
+
+def bias_compensated(reg: QuietRegression) -> tuple[np.ndarray, np.ndarray]:
+    """Eqs. (14)-(15): ``theta = R^-1 (f - [sigma^2, 0, ..., 0])`` and ``sigma^2``.
+
+    ``E{phi(k) Delta e(kp+l)} = [+sigma^2, 0, ..., 0]`` because ``phi_1 = -Delta y(t-1)`` holds
+    ``-e(t-1)`` and ``Delta e(t) = e(t) - e(t-1)``; the compensation therefore subtracts it.
+    """
+    Rm, f = reg.moments()
+    Rinv = _pinv_sym(Rm)
+    theta_ols = np.einsum("rik,rk->ri", Rinv, f)
+    sigma2 = noise_variance(reg.residual_ms(theta_ols), Rinv[:, 0, 0])
+    theta = theta_ols - Rinv[:, :, 0] * sigma2[:, None]
+    return theta, sigma2
+
+
+def instruments(r: np.ndarray, k: np.ndarray, m: int, lag0: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """``zeta(k) = [r(k - lag0), ..., r(k - lag0 - m + 1)]`` (eq. 20 with lag0 = 1) and a row mask."""
+    lags = lag0 + np.arange(m)
+    idx = k[:, None] - lags[None, :]
+    ok = np.all((idx >= 0) & (idx < r.shape[1]), axis=1)
+    return r[:, np.clip(idx, 0, r.shape[1] - 1)], ok
+
+
+def iv(reg: QuietRegression, r: np.ndarray, m: int, lag0: int = 1) -> np.ndarray:
+    """Eq. (20): extended IV ``theta = [(1/n) sum zeta phi^T]^+ (1/n) sum zeta Delta y``."""
+    Z, ok = instruments(r, reg.k, m, lag0)
+    Z, phi, y = Z[:, ok], reg.phi[:, ok], reg.target[:, ok]
+    n = max(int(ok.sum()), 1)
+    Rzp = np.einsum("rjm,rji->rmi", Z, phi) / n
+    fz = np.einsum("rjm,rj->rm", Z, y) / n
+    return np.einsum("rim,rm->ri", np.linalg.pinv(Rzp, rcond=_RCOND), fz)
+
+
+def aic(reg: QuietRegression, theta: np.ndarray, K: int | None = None) -> np.ndarray:
+    """Eq. (19): ``V(na) = (1 + 2 na / K) (1/K) sum (Delta y - phi^T theta)^2``."""
+    K = reg.n if K is None else K
+    na = reg.phi.shape[2]
+    return (1.0 + 2.0 * na / K) * reg.residual_ms(theta)
+
+
+# --- numerator (eqs. 17, 18, 21) ---------------------------------------------------------------
+
+
+def filtered_output(y: np.ndarray, a: np.ndarray) -> np.ndarray:
+    """``w(t) = A(q) y(t)`` per run (``a`` of shape ``(runs, na + 1)``); ``nan`` for ``t < na``."""
+    na = a.shape[1] - 1
+    w = np.einsum("ri,rit->rt", a, np.stack([np.roll(y, i, axis=1) for i in range(na + 1)], 1))
+    w[:, :na] = np.nan
+    return w
+
+
+def active_phase(dw: np.ndarray, p: int, l: int, shift: int, t_min: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(Delta w(k p + l + shift), k)`` for every valid period ``k``."""
+    k = phase_times(dw.shape[1], p, l, shift, t_min)
+    return dw[:, k * p + l + shift], k
+
+
+def _common_periods(dw: np.ndarray, p: int, shift: int, t_min: int, nb: int) -> np.ndarray:
+    k = phase_times(dw.shape[1], p, 1, shift, t_min)
+    k_last = phase_times(dw.shape[1], p, nb, shift, t_min)
+    return np.intersect1d(k, k_last)
+
+
+def phase_variances(dw: np.ndarray, p: int, shift: int, t_min: int) -> np.ndarray:
+    """``Var{Delta w^(l)}``, l = 1..p (the paper's Table 2): mean square over common periods."""
+    k = _common_periods(dw, p, shift, t_min, p)
+    t = k[:, None] * p + np.arange(1, p + 1)[None, :] + shift
+    return np.mean(dw[:, t] ** 2, axis=1)
+
+
+def b_lsm(dw: np.ndarray, p: int, shift: int, nb: int, sigma2: np.ndarray, t_min: int) -> np.ndarray:
+    """Eq. (18), corrected signs: ``b_l = (mean dw1 dwl + sigma^2 delta(l-2)) / (mean dw1^2 - 2 sigma^2)``.
+
+    ``E{Delta e(kp+1) Delta e(kp+2)} = -sigma^2`` and ``E{Delta e^2} = 2 sigma^2`` give those signs.
+    Returns ``(runs, nb)`` with ``b1 = 1``.
+    """
+    k = _common_periods(dw, p, shift, t_min, nb)
+    t = k[:, None] * p + np.arange(1, nb + 1)[None, :] + shift
+    D = dw[:, t]  # (R, n, nb)
+    d1 = D[:, :, 0]
+    den = np.mean(d1**2, axis=1) - 2.0 * sigma2
+    b = np.ones((dw.shape[0], nb))
+    for l in range(2, nb + 1):
+        num = np.mean(d1 * D[:, :, l - 1], axis=1) + (sigma2 if l == 2 else 0.0)
+        b[:, l - 1] = num / den
+    return b
+
+
+def b_ols(dw: np.ndarray, p: int, shift: int, nb: int, t_min: int) -> np.ndarray:
+    """LS ratio of active phases, ``b_l = sum dw1 dwl / sum dw1^2`` (the noise-free design)."""
+    return b_lsm(dw, p, shift, nb, np.zeros(dw.shape[0]), t_min)
+
+
+def b_iv(dw: np.ndarray, r: np.ndarray, p: int, shift: int, nb: int, m: int, t_min: int,
+         lag0: int = 1) -> np.ndarray:
+    """Eq. (21): ``b_l = [(1/K) sum zeta dw1]^+ (1/K) sum zeta dwl`` with ``zeta(k) = r(k-1..k-m)``."""
+    k = _common_periods(dw, p, shift, t_min, nb)
+    Z, ok = instruments(r, k, m, lag0)
+    k, Z = k[ok], Z[:, ok]
+    t = k[:, None] * p + np.arange(1, nb + 1)[None, :] + shift
+    D = dw[:, t]
+    g = np.einsum("rjm,rj->rm", Z, D[:, :, 0]) / len(k)
+    b = np.ones((dw.shape[0], nb))
+    gg = np.einsum("rm,rm->r", g, g)
+    for l in range(2, nb + 1):
+        c = np.einsum("rjm,rj->rm", Z, D[:, :, l - 1]) / len(k)
+        b[:, l - 1] = np.einsum("rm,rm->r", g, c) / gg
+    return b
+
+
+# --- inner signal (eqs. 23-27) -----------------------------------------------------------------
+
+
+def simo_channels(b: np.ndarray, p: int) -> tuple[np.ndarray, np.ndarray]:
+    """Eq. (25): ``h_i(0) = b_1 + .. + b_i`` and ``h_i(1) = b_{i+1} + .. + b_nb``, i = 1..p."""
+    R, nb = b.shape
+    bp = np.zeros((R, p))
+    bp[:, : min(nb, p)] = b[:, :p]
+    h0 = np.cumsum(bp, axis=1)
+    h1 = b.sum(axis=1, keepdims=True) - h0
+    return h0, h1
+
+
+def solve_tridiagonal(lower: np.ndarray, diag: np.ndarray, upper: np.ndarray,
+                      rhs: np.ndarray) -> np.ndarray:
+    """Batched Thomas algorithm: ``diag`` and ``rhs`` ``(R, M)``, ``lower``/``upper`` ``(R, M-1)``.
+
+    O(M) per run, vectorised over runs. Stable for the symmetric positive definite normal
+    equations of (27).
+    """
+    R, M = diag.shape
+    c = np.empty((R, M))
+    d = np.empty((R, M))
+    c[:, 0] = (upper[:, 0] / diag[:, 0]) if M > 1 else 0.0
+    d[:, 0] = rhs[:, 0] / diag[:, 0]
+    for i in range(1, M):
+        den = diag[:, i] - lower[:, i - 1] * c[:, i - 1]
+        if i < M - 1:
+            c[:, i] = upper[:, i] / den
+        d[:, i] = (rhs[:, i] - lower[:, i - 1] * d[:, i - 1]) / den
+    x = np.empty((R, M))
+    x[:, -1] = d[:, -1]
+    for i in range(M - 2, -1, -1):
+        x[:, i] = d[:, i] - c[:, i] * x[:, i + 1]
+    return x
+
+
+@dataclass(frozen=True)
+class SimoSystem:
+    """The stacked SIMO equations (26) for the periods ``n = n0 .. n0 + M - 1``.
+
+    ``W[r, j, i] = w(p (n0 + j) + i + shift)`` (i = 1..p, nan where the sample does not exist);
+    unknowns ``U~(n0 - 1) .. U~(n0 + M - 1)`` (``M + 1`` of them).
+    """
+
+    W: np.ndarray
+    valid: np.ndarray
+    n0: int
+
+
+def simo_system(w: np.ndarray, p: int, shift: int, t_min: int) -> SimoSystem:
+    """Arrange ``w`` into the SIMO blocks of (23); periods with no valid sample are dropped."""
+    N = w.shape[1]
+    n0 = max(1, -(-(t_min - 1 - shift) // p))
+    n1 = (N - 1 - 1 - shift) // p  # last period with at least its first sample
+    n = np.arange(n0, n1 + 1)
+    t = n[:, None] * p + np.arange(1, p + 1)[None, :] + shift
+    valid = (t >= t_min) & (t < N)
+    W = w[:, np.clip(t, 0, N - 1)]
+    W = np.where(valid[None], W, 0.0)
+    return SimoSystem(W=W, valid=valid, n0=int(n0))
+
+
+def inner_signal_ls(sys: SimoSystem, h0: np.ndarray, h1: np.ndarray) -> np.ndarray:
+    """Eq. (27): ``U = (H^T H)^-1 H^T W`` through its tridiagonal normal equations, O(K).
+
+    Row ``(n, i)`` reads ``w_i(n) = h_i(0) U(n) + h_i(1) U(n-1)``. Returns ``U~(n0 - 1 ..)``,
+    shape ``(runs, M + 1)``.
+    """
+    V = sys.valid.astype(float)  # (M, p)
+    W = sys.W
+    # equation block j couples unknowns j (= U(n-1)) and j+1 (= U(n))
+    a11 = np.einsum("ji,ri->rj", V, h1**2)  # coefficient of U(n-1)^2
+    a22 = np.einsum("ji,ri->rj", V, h0**2)
+    a12 = np.einsum("ji,ri->rj", V, h0 * h1)
+    b1 = np.einsum("rji,ri->rj", W, h1)
+    b2 = np.einsum("rji,ri->rj", W, h0)
+    R, M = a11.shape
+    diag = np.zeros((R, M + 1))
+    diag[:, :-1] += a11
+    diag[:, 1:] += a22
+    off = a12
+    rhs = np.zeros((R, M + 1))
+    rhs[:, :-1] += b1
+    rhs[:, 1:] += b2
+    return solve_tridiagonal(off, diag, off, rhs)
+
+
+def inner_signal_dense(sys: SimoSystem, h0: np.ndarray, h1: np.ndarray) -> np.ndarray:
+    """Eq. (27) by a dense least-squares solve of ``H U = W`` (reference and benchmark baseline)."""
+    R = h0.shape[0]
+    M, p = sys.valid.shape
+    out = np.empty((R, M + 1))
+    rows = np.argwhere(sys.valid)  # (eq, 2): period j, channel i
+    for r in range(R):
+        H = np.zeros((rows.shape[0], M + 1))
+        H[np.arange(rows.shape[0]), rows[:, 0]] = h1[r, rows[:, 1]]
+        H[np.arange(rows.shape[0]), rows[:, 0] + 1] = h0[r, rows[:, 1]]
+        out[r] = np.linalg.lstsq(H, sys.W[r, rows[:, 0], rows[:, 1]], rcond=None)[0]
+    return out
+
+
+def bezout_combiner(h0: np.ndarray, h1: np.ndarray) -> np.ndarray:
+    """Minimum-norm degree-0 multichannel inverse: ``g`` with ``sum g_i h_i(0) = 1``,
+    ``sum g_i h_i(1) = 0`` (Bezout identity over the polyphase channels; exists under A4).
+
+    Then ``sum_i g_i w_i(n) = U(n)`` for noise-free data, whatever the phase of B.
+    """
+    Hm = np.stack([h0, h1], axis=1)  # (R, 2, p)
+    rhs = np.array([1.0, 0.0])
+    gram = np.einsum("rai,rbi->rab", Hm, Hm)
+    lam = np.linalg.solve(gram, np.broadcast_to(rhs, (h0.shape[0], 2))[..., None])[..., 0]
+    return np.einsum("rai,ra->ri", Hm, lam)
+
+
+def inner_signal_bezout(sys: SimoSystem, h0: np.ndarray, h1: np.ndarray) -> np.ndarray:
+    """``U~(n) = sum_i g_i w_i(n)`` for periods whose p samples all exist; nan elsewhere.
+
+    Returns the same layout as :func:`inner_signal_ls` (``U~(n0 - 1 ..)``); ``U~(n0-1)`` is nan.
+    """
+    g = bezout_combiner(h0, h1)
+    full = np.all(sys.valid, axis=1)
+    U = np.einsum("rji,ri->rj", sys.W, g)
+    U[:, ~full] = np.nan
+    return np.concatenate([np.full((U.shape[0], 1), np.nan), U], axis=1)
+
+
+def inner_signal_direct(y: np.ndarray, a: np.ndarray, b: np.ndarray, p: int, shift: int,
+                        n_first: int, M: int) -> np.ndarray:
+    """Direct inverse (Bai & Fu): ``u~(t) = A(q)/B(q) y~(t)`` down-sampled, ``U~(n) = u~(p n)``.
+
+    With ``B(q) = q^-1 (b1 + b2 q^-1 + ...)``: ``u~(t - 1) = A(q)/(b1 + b2 q^-1 + ..) y~(t)``, so
+    ``U~(n)`` is the filter's output at ``y~(p n + 1)``. Filtered from rest over the record.
+    Returns ``U~(n_first .. n_first + M - 1)``; unstable (growing) if B is not minimum phase.
+    """
+    R, N = y.shape
+    out = np.full((R, M), np.nan)
+    for rr in range(R):  # lfilter takes one coefficient set; runs differ in (a, b)
+        z = signal.lfilter(a[rr], b[rr], y[rr, shift:])
+        t = (np.arange(n_first, n_first + M)) * p + 1
+        ok = t < z.size
+        out[rr, ok] = z[t[ok]]
+    return out
+
+
+def align(U_tilde: np.ndarray, n_first: int, delay_multiple: int, K: int) -> np.ndarray:
+    """Place ``U~(n_first ..)`` on the record's slow grid: ``U(n) = U~(n + m)``; nan elsewhere.
+
+    ``U~(n) = u(p n - m p)`` when the delay is ``tau + m p`` (assumption A3 gives m).
+    """
+    R, M = U_tilde.shape
+    out = np.full((R, K), np.nan)
+    n = np.arange(n_first, n_first + M) - delay_multiple
+    ok = (n >= 0) & (n < K)
+    out[:, n[ok]] = U_tilde[:, ok]
+    return out
