@@ -34,9 +34,11 @@ def _cmd_plugins(args: argparse.Namespace) -> int:
 
 
 def _cmd_inspect(args: argparse.Namespace) -> int:
+    from hbench.plugins import registry
     from hbench.readers import read_record
 
-    rec = read_record(args.record, p=args.p)
+    readers = [registry().get("readers", n) for n in registry().names("readers")]
+    rec = read_record(args.record, p=args.p, readers=readers)
     for notice in rec.meta.get("notices", []):
         print(f"notice: {notice}", file=sys.stderr)
     info = {

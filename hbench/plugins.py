@@ -42,11 +42,11 @@ class Entry:
 
 
 def _source_of(plugin: object, pm: pluggy.PluginManager) -> str:
+    name = pm.get_name(plugin) or getattr(plugin, "__name__", repr(plugin))
     for plugin_, dist in pm.list_plugin_distinfo():
         if plugin_ is plugin:
-            return f"{dist.project_name} {dist.version}"
-    name = pm.get_name(plugin) or getattr(plugin, "__name__", repr(plugin))
-    return str(name)
+            return f"{dist.project_name} {dist.version} ({name})"
+    return f"{name} (registered at run time)"
 
 
 def make_manager(load_entrypoints: bool = True) -> pluggy.PluginManager:
