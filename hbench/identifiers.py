@@ -160,22 +160,46 @@ class Identifier:
 class SelectionRule:
     """The stated, automatic version of the paper's visual selection (Section 3.4, Section 6).
 
-    * ``na``: the smallest order whose best ``V(na, shift)`` is within ``1 + tol_na`` of the best
-      over all orders (parsimony with a tolerance).
-    * ``tau``: at that ``na``, shifts whose ``V`` is within ``1 + tol_tau`` of the smallest are
-      "quiet"; tau is the last shift of the longest cyclic run of quiet shifts (Table 3's remark:
-      a run 4, 0, 1 ends at 1).
-    * ``nb``: phases whose ``Var{Delta w^(l)}`` exceeds ``1 + tol_nb`` times the quiet level (the
-      mean of the ``p - n0_b`` smallest) are active; nb is the last active phase within ``n0_b``.
+    For every candidate order ``na`` and shift ``s`` the denominator is estimated at phase p under
+    shift s (eq. 13-15 or 20), and its criterion ``C(na, s, s')`` of eq. (19) is evaluated at every
+    shift ``s'``; ``V(na, s) = C(na, s, s)`` is the paper's table (Table 1).
 
-    ``floor`` guards noise-free data: values below ``floor`` times the signal's mean square count
-    as equal.
+    ``method="common-a"`` (default): a shift is quiet for a candidate ``(na, s)`` when its ``C`` is
+    within ``1 + tol_tau`` of the candidate's smallest; the candidate's block is the cyclic run of
+    quiet shifts containing ``s`` (``s`` itself must be quiet). A block's support is the number of
+    shifts in it whose own estimate yields the same block. Each order keeps its best-supported
+    block (ties: the lowest level, the mean ``C`` over the block); among the orders whose block is
+    corroborated (support >= 2, when any order's is), ``na`` is the smallest whose level is
+    within ``1 + tol_na`` of the best (parsimony with a tolerance); tau is the last shift of its
+    block. Rationale: the true A
+    annihilates every quiet phase (eq. 10), so the estimates from all ``p - nb`` quiet shifts
+    agree on one block ending at tau (Section 3.4); a regression that fits one active phase (at
+    the b2 phase an AR(na + 1) absorbs ``b2/b1 Delta w(t-1)``), or a poor one that inflates every
+    shift alike, is supported by itself only; an under-fitted order loses on level.
+
+    ``method="row-min"``: the paper's table read row by row: ``na`` the smallest order whose best
+    ``V`` is within ``1 + tol_na`` of the best overall; shifts within ``1 + tol_tau`` of that row's
+    minimum are quiet; tau the last shift of the longest cyclic run (Table 3's remark: a run
+    4, 0, 1 ends at 1).
+
+    ``nb`` (both methods): phases whose ``Var{Delta w^(l)}`` exceeds ``1 + tol_nb`` times the quiet
+    level (the mean of the ``p - n0_b`` smallest) are active; nb is the last active phase within
+    ``n0_b`` (Table 2). ``floor`` guards noise-free data: differences below ``floor`` times the
+    mean square of ``Delta y`` count as equal.
     """
 
+    method: str = "common-a"
     tol_na: float = 0.05
     tol_tau: float = 0.25
     tol_nb: float = 0.5
     floor: float = 1e-18
+
+    def __post_init__(self) -> None:
+        if self.method not in ("common-a", "row-min"):
+            raise InputError(f"selection method must be 'common-a' or 'row-min', got {self.method!r}")
+        for name in ("tol_na", "tol_tau", "tol_nb"):
+            if not getattr(self, name) >= 0:
+                raise InputError(f"selection {name} must be >= 0")
 
 
 @dataclass(frozen=True)
@@ -185,7 +209,8 @@ class Structure:
     na: np.ndarray
     tau: np.ndarray
     nb: np.ndarray
-    V: np.ndarray  # (R, n_na, p) criterion over (na, shift)
+    V: np.ndarray  # (R, n_na, p): the paper's V(na, shift)
+    C: np.ndarray  # (R, n_na, p, p): criterion of the estimate at shift s evaluated at shift s'
     var_dw: np.ndarray  # (R, p)
     na_values: np.ndarray
 
@@ -198,33 +223,82 @@ def check_identifiable(p: int, options: IdentifyOptions) -> str:
     return ""
 
 
-def _select_na_tau(V: np.ndarray, na_values: np.ndarray, rule: SelectionRule,
-                   scale: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    R, n_na, p = V.shape
-    floor = (rule.floor * scale)[:, None]
+def _cyclic_run(q: np.ndarray, s: int) -> tuple[int, int]:
+    """Length and last element of the cyclic run of True in ``q`` that contains ``s``."""
+    p = q.size
+    if q.all():
+        return p, p - 1
+    end = s
+    while q[(end + 1) % p]:
+        end = (end + 1) % p
+    length = 0
+    while length < p and q[(end - length) % p]:
+        length += 1
+    return length, end
+
+
+def _longest_run(q: np.ndarray) -> tuple[int, int]:
+    """Length and last element of the longest cyclic run of True in ``q`` (ties: first found)."""
+    best = (0, 0)
+    for s in np.flatnonzero(q):
+        cand = _cyclic_run(q, int(s))
+        if cand[0] > best[0]:
+            best = cand
+    return best
+
+
+def _select_row_min(V: np.ndarray, na_values: np.ndarray, rule: SelectionRule,
+                    floor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    R = V.shape[0]
     best_per_na = V.min(axis=2)  # (R, n_na)
     best = best_per_na.min(axis=1, keepdims=True)
-    ok = best_per_na <= (1 + rule.tol_na) * best + floor
+    ok = best_per_na <= (1 + rule.tol_na) * best + floor[:, None]
     ia = np.argmax(ok, axis=1)
-    na = na_values[ia]
-    Vna = V[np.arange(R), ia]  # (R, p)
-    quiet = Vna <= (1 + rule.tol_tau) * Vna.min(axis=1, keepdims=True) + floor
-    tau = np.empty(R, dtype=int)
-    for r in range(R):  # p is small; cyclic runs per run
-        q = quiet[r]
-        if q.all():
-            tau[r] = p - 1
+    Vna = V[np.arange(R), ia]
+    quiet = Vna <= (1 + rule.tol_tau) * Vna.min(axis=1, keepdims=True) + floor[:, None]
+    tau = np.array([_longest_run(quiet[r])[1] for r in range(R)], dtype=int)
+    return na_values[ia], tau
+
+
+def _select_common_a(C: np.ndarray, na_values: np.ndarray, rule: SelectionRule,
+                     floor: np.ndarray, allowed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    R, n_na, p, _ = C.shape
+    na_out = np.empty(R, dtype=int)
+    tau_out = np.empty(R, dtype=int)
+    for r in range(R):  # small tables (n_na x p x p) per run
+        best_per_order: dict[int, tuple[int, float, int]] = {}  # ia -> (support, level, tau)
+        for ia in range(n_na):
+            blocks: dict[tuple[int, ...], list[float]] = {}
+            ends: dict[tuple[int, ...], int] = {}
+            for s in range(p):
+                row = C[r, ia, s]
+                q = row <= (1 + rule.tol_tau) * row.min() + floor[r]
+                if not q[s]:
+                    continue  # the estimate from shift s does not explain shift s
+                length, end = _cyclic_run(q, s)
+                block = tuple(sorted((end - i) % p for i in range(length)))
+                blocks.setdefault(block, []).append(float(np.mean(row[list(block)])))
+                ends[block] = end
+            for block, levels in blocks.items():
+                if not allowed[ends[block]]:
+                    continue
+                cand = (len(levels), float(np.mean(levels)), ends[block])
+                cur = best_per_order.get(ia)
+                if cur is None or (cand[0], -cand[1]) > (cur[0], -cur[1]):
+                    best_per_order[ia] = cand
+        if not best_per_order:  # nothing explains itself: fall back to the paper's table
+            V = np.stack([C[r, :, s, s] for s in range(p)], axis=1)[None]
+            na_r, tau_r = _select_row_min(np.where(allowed[None, None, :], V, np.inf),
+                                          na_values, rule, floor[r : r + 1])
+            na_out[r], tau_out[r] = na_r[0], tau_r[0]
             continue
-        best_len, best_end = -1, 0
-        for end in range(p):
-            if q[end] and not q[(end + 1) % p]:
-                length = 0
-                while length < p and q[(end - length) % p]:
-                    length += 1
-                if length > best_len:
-                    best_len, best_end = length, end
-        tau[r] = best_end
-    return na, tau
+        # corroborated blocks (two or more shifts agree) whenever any order has one
+        support = min(2, max(v[0] for v in best_per_order.values()))
+        eligible = {ia: v for ia, v in best_per_order.items() if v[0] >= support}
+        best = min(v[1] for v in eligible.values())
+        ia = min(i for i, v in eligible.items() if v[1] <= (1 + rule.tol_na) * best + floor[r])
+        na_out[r], tau_out[r] = na_values[ia], eligible[ia][2]
+    return na_out, tau_out
 
 
 def _select_nb(var_dw: np.ndarray, nb_max: int, rule: SelectionRule,
@@ -266,20 +340,27 @@ def select_structure(
         lo, hi = options.tau_range
         if not 0 <= lo <= hi < p:
             raise InputError(f"tau_range must lie within [0, p) = [0, {p}), got {options.tau_range}")
-    V = np.empty((R, na_values.size, p))
     all_runs = np.arange(R)
+    n_na = na_values.size
+    C = np.empty((R, n_na, p, p))
     for i, na in enumerate(na_values):
+        regs = [pp.quiet_regression(dy, p, int(na), (p,), s) for s in shifts]
         for s in shifts:
-            reg = pp.quiet_regression(dy, p, int(na), (p,), s)
-            V[:, i, s] = pp.aic(reg, fit(reg, all_runs)[0])
+            theta = fit(regs[s], all_runs)[0]
+            for s2 in shifts:
+                C[:, i, s, s2] = pp.aic(regs[s2], theta)
+    V = np.einsum("rass->ras", C)
+    allowed = np.ones(p, bool)
     if options.tau_range is not None:
         lo, hi = options.tau_range
-        mask = np.zeros(p, bool)
-        mask[lo : hi + 1] = True
-        V_sel = np.where(mask[None, None, :], V, np.inf)
+        allowed[:] = False
+        allowed[lo : hi + 1] = True
+    floor = rule.floor * scale
+    if rule.method == "row-min":
+        na, tau = _select_row_min(np.where(allowed[None, None, :], V, np.inf), na_values, rule,
+                                  floor)
     else:
-        V_sel = V
-    na, tau = _select_na_tau(V_sel, na_values, rule, scale)
+        na, tau = _select_common_a(C, na_values, rule, floor, allowed)
     if options.tau is not None:
         tau = np.full(R, int(options.tau))
     # (ii)-(iii): A with nb = n0_b, then Var of Delta w per phase
@@ -293,7 +374,7 @@ def select_structure(
         var_dw[idx] = pp.phase_variances(dw, p, key[1], t_min=key[0] + 1)
     nb = _select_nb(var_dw, options.nb_max, rule, scale) if options.nb is None else np.full(
         R, int(options.nb))
-    return Structure(na=na, tau=tau, nb=nb, V=V, var_dw=var_dw, na_values=na_values)
+    return Structure(na=na, tau=tau, nb=nb, V=V, C=C, var_dw=var_dw, na_values=na_values)
 
 
 def groups(*keys: np.ndarray) -> list[tuple[tuple[int, ...], np.ndarray]]:
@@ -342,6 +423,13 @@ NumeratorFit = Callable[[np.ndarray, int, int, np.ndarray, np.ndarray], np.ndarr
 InnerSignal = Callable[..., tuple[np.ndarray, int, str]]
 
 
+#: Why an ``inner`` step returned no estimate, by its label.
+REFUSALS = {
+    "refused-nmp": "B(q) is not minimum phase: the direct inverse A(q)/B(q) is unstable and was "
+                   "refused (choose inverse='bezout' or 'auto')",
+}
+
+
 def inner_ls(y: np.ndarray, w: np.ndarray, a: np.ndarray, b: np.ndarray, p: int, tau: int,
              t_min: int) -> tuple[np.ndarray, int, str]:
     """The paper's inner-signal estimate, eq. (27), solved in O(K) (tridiagonal)."""
@@ -361,18 +449,21 @@ def blind_fit(
     pooled: bool = False,
     rule: SelectionRule = SelectionRule(),
     info: dict[str, Any] | None = None,
+    selector: DenominatorFit | None = None,
 ) -> Estimate:
     """The blind route shared by the methods: structure, A, B, A4 check, U, alignment with x.
 
     Runs that select the same (na, tau, nb) are processed together, batched. ``pooled`` takes
     the denominator from all quiet phases ``nb + 1 .. p`` instead of phase ``p`` alone.
+    ``selector`` is the denominator estimate used for the structure selection (default: the
+    method's own ``denominator``).
     """
     p, R, K = record.p, record.runs, record.n_slow
     why = check_identifiable(p, options)
     if why:
         return empty_estimate(method, record, why, **(info or {}))
     y = record.y
-    st = select_structure(y, p, options, denominator, rule, pooled)
+    st = select_structure(y, p, options, selector or denominator, rule, pooled)
     na_max, nb_max = int(st.na.max()), int(st.nb.max())
     a = np.zeros((R, na_max))
     b = np.zeros((R, nb_max))
@@ -404,6 +495,8 @@ def blind_fit(
             Ut, n_first, label = inner(y[good], w[sel], den[sel], bb[sel], p, tau, na)
             U[good] = pp.align(Ut, n_first, options.delay_multiple, K)
             inverse[label] = inverse.get(label, 0) + good.size
+            for j in good[np.all(np.isnan(U[good]), axis=1)]:
+                reason[j] = REFUSALS.get(label, f"no inner-signal estimate ({label})")
     out_info = dict(info or {})
     out_info["inverse"] = inverse
     out_info["pooled"] = pooled

@@ -31,6 +31,19 @@ KINDS: dict[str, str] = {
 }
 
 
+#: Kind -> the singular noun used in messages.
+SINGULAR: dict[str, str] = {
+    "identifiers": "method",
+    "nonlinearities": "nonlinearity",
+    "plants": "plant",
+    "controllers": "controller",
+    "noise_models": "noise model",
+    "references": "reference",
+    "effects": "effect",
+    "readers": "reader",
+}
+
+
 @dataclass(frozen=True)
 class Entry:
     """One registered thing: its name, the object, and the plugin (package) it comes from."""
@@ -94,7 +107,7 @@ class Registry:
                     if name in out[_kind]:
                         prev = out[_kind][name].source
                         raise InputError(
-                            f"{_kind[:-1]} {name!r} is registered twice ({prev} and {_src})"
+                            f"{SINGULAR[_kind]} {name!r} is registered twice ({prev} and {_src})"
                         )
                     out[_kind][name] = Entry(_kind, name, obj, _src)
 
@@ -111,9 +124,8 @@ class Registry:
             return self.entries[kind][name].obj
         except KeyError:
             known = ", ".join(self.names(kind)) or "none"
-            what = kind.replace("_", " ")
             raise PluginNotFoundError(
-                f"unknown {what[:-1] if what.endswith('s') else what} {name!r} (known: {known})"
+                f"unknown {SINGULAR.get(kind, kind)} {name!r} (known: {known})"
             ) from None
 
     def as_dict(self) -> dict[str, list[dict[str, str]]]:

@@ -313,7 +313,17 @@ def inner_signal_ls(sys: SimoSystem, h0: np.ndarray, h1: np.ndarray) -> np.ndarr
     rhs = np.zeros((R, M + 1))
     rhs[:, :-1] += b1
     rhs[:, 1:] += b2
-    return solve_tridiagonal(off, diag, off, rhs)
+    # an unknown in no equation (e.g. U(n0 - 1) when nb = 1, all h_i(1) = 0) is undetermined:
+    # pin it (unit diagonal, decoupled) and report nan
+    free = diag <= 0.0
+    if free.any():
+        diag = np.where(free, 1.0, diag)
+        off = off.copy()
+        off[free[:, :-1]] = 0.0
+        off[free[:, 1:]] = 0.0
+        rhs = np.where(free, 0.0, rhs)
+    U = solve_tridiagonal(off, diag, off, rhs)
+    return np.where(free, np.nan, U)
 
 
 def inner_signal_dense(sys: SimoSystem, h0: np.ndarray, h1: np.ndarray) -> np.ndarray:

@@ -48,9 +48,12 @@ def inverse_inner(choice: str):
         if rest.any() and choice != "refuse":
             h0, h1 = pp.simo_channels(b[rest], p)
             U[rest] = pp.inner_signal_bezout(sys, h0, h1)[:, : M]
-        label = ("direct" if use_direct.all() else
-                 "bezout" if not use_direct.any() and choice != "refuse" else
-                 "refused-nmp" if choice == "refuse" and not use_direct.any() else "mixed")
+        if choice == "refuse" and rest.any():
+            label = "refused-nmp"  # runs without an estimate get this reason in blind_fit
+        elif use_direct.all():
+            label = "direct"
+        else:
+            label = "bezout" if not use_direct.any() else "direct+bezout"
         return U, n_first, label
 
     return inner

@@ -28,15 +28,15 @@ from hbench.records import Record, Truth
 
 
 class _Wang(Identifier):
-    def __init__(self, pooled: bool = False, tol_na: float = 0.05, tol_tau: float = 0.25,
-                 tol_nb: float = 0.5) -> None:
+    def __init__(self, pooled: bool = False, selection: str = "common-a", tol_na: float = 0.05,
+                 tol_tau: float = 0.25, tol_nb: float = 0.5) -> None:
         self.pooled = bool(pooled)
-        self.rule = SelectionRule(tol_na=float(tol_na), tol_tau=float(tol_tau),
-                                  tol_nb=float(tol_nb))
+        self.rule = SelectionRule(method=selection, tol_na=float(tol_na),
+                                  tol_tau=float(tol_tau), tol_nb=float(tol_nb))
 
     def options(self) -> dict[str, Any]:
-        return {"pooled": self.pooled, "tol_na": self.rule.tol_na, "tol_tau": self.rule.tol_tau,
-                "tol_nb": self.rule.tol_nb}
+        return {"pooled": self.pooled, "selection": self.rule.method, "tol_na": self.rule.tol_na,
+                "tol_tau": self.rule.tol_tau, "tol_nb": self.rule.tol_nb}
 
 
 class WangLSM(_Wang):
@@ -72,6 +72,10 @@ class WangLSM(_Wang):
 class WangIV(_Wang):
     """Instrumental variables (eqs. 20 for A, 21 for B, 27 for U), instruments from past r.
 
+    The structure (na, tau, nb) is decided once, as in the paper's steps (i)-(iii), from the
+    bias-compensated LSM's table (``structure="lsm"``, default: the paper reads both tables and
+    cross-checks; the IV's table is noisier and its over-fitted orders win by chance) or from the
+    IV's own table (``structure="iv"``); the IV then estimates A and B with that structure.
     ``zeta(k) = [r(k - lag0), ..., r(k - lag0 - m + 1)]`` with the paper's ``lag0 = 1``; the extended
     IV solution uses the Moore-Penrose pseudo-inverse when ``m > na``. Consistent under coloured
     noise as long as r is independent of it (A1); larger variance than the LSM. The noise variance
@@ -82,14 +86,16 @@ class WangIV(_Wang):
     needs: ClassVar[frozenset[str]] = frozenset({"r"})
     summary: ClassVar[str] = "Wang et al. 2007: instrumental variables from past r (eqs. 20, 21, 27)"
 
-    def __init__(self, m: int = 6, lag0: int = 1, **kwargs: Any) -> None:
+    def __init__(self, m: int = 6, lag0: int = 1, structure: str = "lsm", **kwargs: Any) -> None:
         super().__init__(**kwargs)
         if int(m) < 1 or int(lag0) < 1:
             raise InputError(f"wang-iv needs m >= 1 and lag0 >= 1 (got m={m}, lag0={lag0})")
-        self.m, self.lag0 = int(m), int(lag0)
+        if structure not in ("lsm", "iv"):
+            raise InputError(f"wang-iv structure must be 'lsm' or 'iv', got {structure!r}")
+        self.m, self.lag0, self.structure = int(m), int(lag0), structure
 
     def options(self) -> dict[str, Any]:
-        return {**super().options(), "m": self.m, "lag0": self.lag0}
+        return {**super().options(), "m": self.m, "lag0": self.lag0, "structure": self.structure}
 
     def identify(self, record: Record, options: IdentifyOptions,
                  truth: Truth | None = None) -> Estimate:
@@ -104,9 +110,15 @@ class WangIV(_Wang):
             t_min = int(np.argmin(np.isnan(dw[0])))
             return pp.b_iv(dw, r[idx], record.p, tau, nb, self.m, t_min, self.lag0)
 
+        selector = None
+        if self.structure == "lsm":
+
+            def selector(reg: pp.QuietRegression, idx: np.ndarray):
+                return pp.bias_compensated(reg)
+
         return blind_fit(self.name, record, options, denominator=denominator,
                          numerator=numerator, pooled=self.pooled, rule=self.rule,
-                         info=self.options())
+                         info=self.options(), selector=selector)
 
 
 @hookimpl
