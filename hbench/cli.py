@@ -73,8 +73,10 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         if key in ("noise.sigma2", "noise.snr"):
             spec["noise"].pop("sigma2", None)
             spec["noise"].pop("snr", None)
-        if key.endswith(".name"):  # a new plugin: drop the old one's parameters
-            spec[key.split(".")[0]] = {}
+        if key.endswith(".name"):  # a new plugin: drop the old one's parameters (not the level)
+            group = key.split(".")[0]
+            spec[group] = {k: v for k, v in spec.get(group, {}).items()
+                           if group == "noise" and k in ("sigma2", "snr")}
         scenarios.set_dotted(spec, key, value)
     scenario = scenarios.build(spec)
     record, truth = simulate(scenario, 1, np.random.default_rng(args.seed))

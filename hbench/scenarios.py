@@ -117,6 +117,11 @@ def parse_value(text: str) -> Any:
     """A command-line value: YAML-ish scalars and lists (``0.1``, ``true``, ``[0, 0.5]``)."""
     import yaml
 
+    for convert in (int, float):  # YAML 1.1 reads "1e-3" (no dot) as a string
+        try:
+            return convert(text)
+        except ValueError:
+            pass
     try:
         return yaml.safe_load(text)
     except yaml.YAMLError:

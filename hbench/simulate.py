@@ -63,6 +63,18 @@ class Scenario:
     meta: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        for name in ("T", "duration", "sigma2", "snr"):
+            value = getattr(self, name)
+            if value is None:
+                continue
+            try:
+                setattr(self, name, float(value))
+            except (TypeError, ValueError):
+                raise InputError(f"{name} must be a number, got {value!r}") from None
+        try:
+            self.p = int(self.p) if float(self.p) == int(float(self.p)) else self.p
+        except (TypeError, ValueError):
+            raise InputError(f"p must be a positive integer, got {self.p!r}") from None
         if int(self.p) != self.p or self.p < 1:
             raise InputError(f"p must be a positive integer, got {self.p}")
         if not self.T > 0:
@@ -185,9 +197,11 @@ def _run_loop(
     v_slow = v[:, ::p]
     cstate = controller.initial_state(R)
     nstate = nonlinearity.initial_state(R)
+    Y0pn = np.empty((K, R))
     for n in range(K):
         S[n] = s
-        e = r[:, n] - (s @ H + v_slow[:, n])
+        Y0pn[n] = s @ H
+        e = r[:, n] - (Y0pn[n] + v_slow[:, n])
         x, cstate = controller.step(e, cstate)
         u, nstate = nonlinearity.step(x, nstate)
         X[n] = x
@@ -195,6 +209,7 @@ def _run_loop(
         s = s @ FpT + u[:, None] * Gp
     # fast outputs of every period at once: (K, R, p) -> (R, K p)
     y0 = np.einsum("krl,il->rki", S, lp.Ob) + (U.T)[:, :, None] * lp.Db
+    y0[:, :, 0] = Y0pn.T  # the very values the controller read (same rounding)
     return y0.reshape(R, K * p), X.T.copy(), U.T.copy()
 
 
@@ -262,15 +277,27 @@ def simulate(
     else:
         # fixed-point iteration on the per-run scale: the loop feeds the noise back into y0
         y0, x, U = _run_loop(lp, sc.controller, sc.nonlinearity, r, np.zeros_like(v_unit), p)
+        # Each run's scale follows its own iteration and freezes once that run has converged,
+        # so a run's result does not depend on the other runs of its batch (chunking).
         nv = np.linalg.norm(v_unit, axis=-1)
         scale = np.linalg.norm(y0, axis=-1) / (sc.snr * nv)
+        done = np.zeros(runs, bool)
         for _ in range(max_iter):
             v = scale[:, None] * v_unit
             y0, x, U = _run_loop(lp, sc.controller, sc.nonlinearity, r, v, p)
             ratio = _snr(y0, v) / sc.snr
-            if np.all(np.abs(ratio - 1.0) <= snr_tol):
+            done |= np.abs(ratio - 1.0) <= snr_tol
+            if done.all():
                 break
-            scale = scale * ratio
+            scale = np.where(done, scale, scale * ratio)
+        if not done.all():
+            reached = _snr(y0, v)[~done]
+            raise InputError(
+                f"target SNR {sc.snr:g} not reached in {max_iter} passes for "
+                f"{int((~done).sum())} of {runs} runs (they reach {reached.min():.3g} .. "
+                f"{reached.max():.3g}): the noise fed back through the loop bounds "
+                "||y0|| / ||v||; choose a larger SNR or give sigma2"
+            )
         sigma2 = scale**2
     if not np.all(np.isfinite(y0)):
         raise UnstableError(f"closed loop of scenario {sc.name!r} diverged (non-finite output)")

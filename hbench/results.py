@@ -1,0 +1,148 @@
+"""Results are data: tidy rows, their aggregation into the contract's tables, provenance.
+
+``fitness.csv``: one row per (method, nonlinearity, p, delay, sigma2) cell with ``snr_mean, n,
+fitness_mean, fitness_std`` (fitness in %, the paper's gain scaling). ``bias.csv``: one row per
+(method, cell, parameter) with ``true, mean, bias, std, n``. For cells given by a target SNR the
+``sigma2`` column is empty (nan): the level varies by run; the tidy rows keep ``snr_target``.
+"""
+
+from __future__ import annotations
+
+import json
+import platform
+import subprocess
+from collections.abc import Mapping
+from datetime import UTC, datetime
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+FITNESS_COLUMNS = ["method", "nonlinearity", "p", "delay", "sigma2", "snr_mean", "n",
+                   "fitness_mean", "fitness_std"]
+BIAS_COLUMNS = ["method", "nonlinearity", "p", "delay", "sigma2", "parameter", "true", "mean",
+                "bias", "std", "n"]
+CELL_KEYS = ["method", "nonlinearity", "p", "delay", "sigma2"]
+
+
+def _is_param(q: pd.Series) -> pd.Series:
+    return q.str.fullmatch(r"[ab]\d+")
+
+
+def aggregate(rows: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """``(fitness, bias)`` tables from tidy rows (failed and not-identifiable runs excluded from
+    the statistics; ``n`` counts the runs that entered them)."""
+    rows = rows.copy()
+    key_sigma = rows["sigma2"].where(rows["sigma2"].notna(), -rows["snr_target"])
+    rows["_k"] = key_sigma  # SNR cells: negative marker keeps them apart from sigma2 cells
+    ok = rows[rows["status"] == "ok"]
+    keys = ["method", "nonlinearity", "p", "delay", "_k"]
+    fit = ok[ok["quantity"] == "fitness"]
+    g = fit.groupby(keys, sort=True, dropna=False)
+    fitness = g.agg(sigma2=("sigma2", "first"), snr_mean=("snr", "mean"), n=("value", "count"),
+                    fitness_mean=("value", "mean"), fitness_std=("value", "std")).reset_index()
+    par = ok[_is_param(ok["quantity"])]
+    g = par.groupby([*keys, "quantity"], sort=True, dropna=False)
+    bias = g.agg(sigma2=("sigma2", "first"), true=("true", "first"), mean=("value", "mean"),
+                 std=("value", "std"), n=("value", "count")).reset_index()
+    bias["bias"] = bias["mean"] - bias["true"]
+    bias = bias.rename(columns={"quantity": "parameter"})
+    for t in (fitness, bias):
+        snr_cells = t["_k"] < 0
+        t.loc[snr_cells, "sigma2"] = np.nan
+    fitness = fitness[FITNESS_COLUMNS].reset_index(drop=True)
+    bias = bias[BIAS_COLUMNS].reset_index(drop=True)
+    return fitness, bias
+
+
+def to_markdown(table: pd.DataFrame, floatfmt: str = ".4g") -> str:
+    """A GitHub-flavoured Markdown table (no extra dependency)."""
+    cols = list(table.columns)
+    fmt = (lambda v: format(v, floatfmt) if isinstance(v, float) else str(v))
+    lines = ["| " + " | ".join(cols) + " |", "|" + "|".join("---" for _ in cols) + "|"]
+    for _, row in table.iterrows():
+        lines.append("| " + " | ".join(fmt(row[c]) for c in cols) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def to_latex(table: pd.DataFrame, caption: str = "", floatfmt: str = ".4g") -> str:
+    """A booktabs LaTeX table."""
+    cols = list(table.columns)
+    esc = (lambda s: str(s).replace("_", r"\_").replace("%", r"\%"))
+    fmt = (lambda v: format(v, floatfmt) if isinstance(v, float) else esc(v))
+    out = [r"\begin{table}[ht]", r"\centering", r"\begin{tabular}{" + "l" * len(cols) + "}",
+           r"\toprule", " & ".join(esc(c) for c in cols) + r" \\", r"\midrule"]
+    for _, row in table.iterrows():
+        out.append(" & ".join(fmt(row[c]) for c in cols) + r" \\")
+    out += [r"\bottomrule", r"\end{tabular}"]
+    if caption:
+        out.append(r"\caption{" + esc(caption) + "}")
+    out.append(r"\end{table}")
+    return "\n".join(out) + "\n"
+
+
+def write_tables(rows: pd.DataFrame, out: Path) -> dict[str, Path]:
+    """Aggregate ``rows`` and write fitness/bias as CSV, Markdown and LaTeX into ``out``."""
+    out.mkdir(parents=True, exist_ok=True)
+    fitness, bias = aggregate(rows)
+    paths = {}
+    for name, table in (("fitness", fitness), ("bias", bias)):
+        paths[f"{name}.csv"] = out / f"{name}.csv"
+        table.to_csv(paths[f"{name}.csv"], index=False, float_format="%.10g")
+        (out / f"{name}.md").write_text(to_markdown(table))
+        (out / f"{name}.tex").write_text(to_latex(table, caption=f"hbench {name}"))
+    return paths
+
+
+def git_revision(path: Path | None = None) -> str:
+    """The git revision of the source tree (``+dirty`` if modified), or ``unknown``."""
+    here = path or Path(__file__).resolve().parent
+    try:
+        rev = subprocess.run(["git", "rev-parse", "HEAD"], cwd=here, capture_output=True,
+                             text=True, timeout=5, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
+                               cwd=here, capture_output=True, text=True, timeout=5).stdout
+        return rev + ("+dirty" if dirty.strip() else "")
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+def provenance(config: Mapping[str, Any] | None = None, seeds: Mapping[str, Any] | None = None
+               ) -> dict[str, Any]:
+    """Package versions, git revision, platform, time, config and seeds."""
+    versions = {}
+    for pkg in ("hbench", "numpy", "scipy", "pandas", "pluggy", "hydra-core", "matplotlib"):
+        try:
+            versions[pkg] = metadata.version(pkg)
+        except metadata.PackageNotFoundError:
+            versions[pkg] = None
+    return {
+        "hbench_version": versions["hbench"],
+        "git_revision": git_revision(),
+        "versions": versions,
+        "python": platform.python_version(),
+        "platform": platform.platform(),
+        "created": datetime.now(UTC).isoformat(timespec="seconds"),
+        "config": dict(config or {}),
+        "seeds": dict(seeds or {}),
+    }
+
+
+def write_provenance(out: Path, **kwargs: Any) -> Path:
+    path = out / "provenance.json"
+    path.write_text(json.dumps(provenance(**kwargs), indent=2, default=str))
+    return path
+
+
+def new_output_dir(base: Path, name: str) -> Path:
+    """A fresh folder ``base/name-YYYYmmddTHHMMSSZ[-k]``: earlier results are never overwritten."""
+    stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
+    path = base / f"{name}-{stamp}"
+    k = 1
+    while path.exists():
+        k += 1
+        path = base / f"{name}-{stamp}-{k}"
+    path.mkdir(parents=True)
+    return path
