@@ -7,9 +7,10 @@ configuration; 1 for an internal error.
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Sequence  # noqa: F401
 
 from hbench.errors import InputError
 
@@ -118,13 +119,25 @@ def build_parser() -> argparse.ArgumentParser:
                    help="override a scenario key (dotted), repeatable")
     p.set_defaults(func=_cmd_simulate)
 
-    for extra in _EXTRA_COMMANDS:
-        extra(sub)
+    for module_name in COMMAND_MODULES:
+        try:
+            module = importlib.import_module(module_name)
+        except ModuleNotFoundError as exc:
+            if exc.name != module_name:
+                raise
+            continue  # that command is not built yet
+        module.add_parser(sub)
     return parser
 
 
-#: Functions ``f(subparsers)`` that add further commands (sweep, reproduce, report, diagnose).
-_EXTRA_COMMANDS: list[Callable[[argparse._SubParsersAction], None]] = []
+#: Modules that each add one command through ``add_parser(subparsers)``; the parser sets
+#: ``func(args) -> int``. Their module-level imports must stay light (start-up time).
+COMMAND_MODULES: tuple[str, ...] = (
+    "hbench.sweep",
+    "hbench.reproduce",
+    "hbench.report",
+    "hbench.diagnose",
+)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
