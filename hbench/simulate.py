@@ -226,6 +226,7 @@ def simulate(
     *,
     start: int = 0,
     snr_tol: float = 1e-3,
+    snr_accept: float = 1e-2,
     max_iter: int = 20,
 ) -> tuple[Record, Truth]:
     """Simulate ``runs`` independent realisations of the closed loop.
@@ -241,7 +242,12 @@ def simulate(
     start : int
         Index of the first run (to simulate a large batch in chunks with identical results).
     snr_tol : float
-        With a target SNR, stop iterating once every run's SNR is within this relative error.
+        With a target SNR, a run stops iterating (its scale freezes) once its SNR is within this
+        relative error, so a run's result never depends on the other runs of its batch.
+    snr_accept : float
+        A run that has not met ``snr_tol`` after ``max_iter`` passes (the SNR of a memoryful
+        actuator jumps with the scale) keeps its best pass if within this relative error;
+        otherwise the target is refused with :class:`InputError`.
     max_iter : int
         At most this many closed-loop passes when targeting an SNR.
 
@@ -282,22 +288,33 @@ def simulate(
         nv = np.linalg.norm(v_unit, axis=-1)
         scale = np.linalg.norm(y0, axis=-1) / (sc.snr * nv)
         done = np.zeros(runs, bool)
+        best_scale, best_err = scale.copy(), np.full(runs, np.inf)
         for _ in range(max_iter):
             v = scale[:, None] * v_unit
             y0, x, U = _run_loop(lp, sc.controller, sc.nonlinearity, r, v, p)
             ratio = _snr(y0, v) / sc.snr
-            done |= np.abs(ratio - 1.0) <= snr_tol
+            err = np.abs(ratio - 1.0)
+            better = ~done & (err < best_err)
+            best_scale = np.where(better, scale, best_scale)
+            best_err = np.where(better, err, best_err)
+            done |= err <= snr_tol
             if done.all():
                 break
             scale = np.where(done, scale, scale * ratio)
         if not done.all():
-            reached = _snr(y0, v)[~done]
-            raise InputError(
-                f"target SNR {sc.snr:g} not reached in {max_iter} passes for "
-                f"{int((~done).sum())} of {runs} runs (they reach {reached.min():.3g} .. "
-                f"{reached.max():.3g}): the noise fed back through the loop bounds "
-                "||y0|| / ||v||; choose a larger SNR or give sigma2"
-            )
+            # memoryful actuators make the SNR jump with the scale: the iteration can cycle
+            # around the target; take each run's best pass when it is within snr_accept
+            if np.any(best_err[~done] > snr_accept):
+                bad = ~done & (best_err > snr_accept)
+                raise InputError(
+                    f"target SNR {sc.snr:g} not reached within {100 * snr_accept:g} % in "
+                    f"{max_iter} passes for {int(bad.sum())} of {runs} runs (best relative error "
+                    f"{best_err[bad].min():.3g} .. {best_err[bad].max():.3g}): the noise fed back "
+                    "through the loop bounds ||y0|| / ||v||; choose a larger SNR or give sigma2"
+                )
+            scale = np.where(done, scale, best_scale)
+            v = scale[:, None] * v_unit
+            y0, x, U = _run_loop(lp, sc.controller, sc.nonlinearity, r, v, p)
         sigma2 = scale**2
     if not np.all(np.isfinite(y0)):
         raise UnstableError(f"closed loop of scenario {sc.name!r} diverged (non-finite output)")

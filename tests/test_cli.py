@@ -21,6 +21,14 @@ from hbench.readers import read_record
 RunCli = Callable[[list[str]], tuple[int, str, str]]
 
 
+def _simulate(run_cli: RunCli, out: Path, *settings: str) -> tuple[int, str, str]:
+    """``hbench simulate --out OUT --set S1 --set S2 ...``."""
+    argv = ["simulate", "--out", str(out)]
+    for item in settings:
+        argv += ["--set", item]
+    return run_cli(argv)
+
+
 def test_simulate_then_inspect(run_cli: RunCli, tmp_path: Path) -> None:
     out = tmp_path / "F.csv"
     status, stdout, stderr = run_cli(["simulate", "--out", str(out)])
@@ -50,9 +58,8 @@ def test_simulate_seed_is_reproducible(run_cli: RunCli, tmp_path: Path) -> None:
 
 def test_simulate_set_changes_the_scenario(run_cli: RunCli, tmp_path: Path) -> None:
     out = tmp_path / "p4.csv"
-    status, _, _ = run_cli(
-        ["simulate", "--out", str(out), "--set", "p=4", "--set", "duration=60",
-         "--set", "nonlinearity.name=stiction", "--set", "nonlinearity.S=0.2"]
+    status, _, _ = _simulate(
+        run_cli, out, "p=4", "duration=60", "nonlinearity.name=stiction", "nonlinearity.S=0.2"
     )
     assert status == 0
     rec = read_record(out)
@@ -60,7 +67,9 @@ def test_simulate_set_changes_the_scenario(run_cli: RunCli, tmp_path: Path) -> N
 
 
 BAD_INPUT = [
-    pytest.param(["--set", "plant.name=nope"], ["unknown plant 'nope'", "paper"], id="unknown-plugin"),
+    pytest.param(
+        ["--set", "plant.name=nope"], ["unknown plant 'nope'", "paper"], id="unknown-plugin"
+    ),
     pytest.param(
         ["--set", "plant.name=discrete", "--set", "plant.a=[1,-2.5,1.2]"],
         ["plant", "unstable"],
@@ -95,10 +104,9 @@ def test_simulate_bad_input(
 
 
 def test_bad_input_exit_status_from_the_interpreter(tmp_path: Path) -> None:
+    argv = ["simulate", "--out", str(tmp_path / "x.csv"), "--set", "plant.name=nope"]
     proc = subprocess.run(
-        [sys.executable, "-m", "hbench.cli", "simulate", "--out", str(tmp_path / "x.csv"),
-         "--set", "plant.name=nope"],
-        capture_output=True, text=True, timeout=120, check=False,
+        [sys.executable, "-m", "hbench.cli", *argv], capture_output=True, text=True, timeout=120
     )
     assert proc.returncode == 2
     _assert_one_line_error(proc.stderr)
@@ -125,40 +133,25 @@ def test_no_command_prints_help(run_cli: RunCli) -> None:
     assert "simulate" in out
 
 
-# --------------------------------------------------------------------------- known bugs
+# --------------------------------------------------------------------------- noise level
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="scenarios.parse_value uses yaml.safe_load, which reads '1e-3' (YAML 1.1: no dot) as "
-    "the string '1e-3'; Scenario.__post_init__ then compares str >= 0 and raises TypeError "
-    "(traceback, exit 1) for the paper's own noise level",
-)
 def test_simulate_sigma2_in_exponent_notation(run_cli: RunCli, tmp_path: Path) -> None:
-    status, _, _ = run_cli(["simulate", "--out", str(tmp_path / "s.csv"), "--set", "noise.sigma2=1e-3"])
-    assert status == 0
+    """'1e-3' is a string to YAML 1.1 (no dot); the paper's own noise level must still work."""
+    status, _, stderr = _simulate(run_cli, tmp_path / "s.csv", "noise.sigma2=1e-3")
+    assert status == 0, stderr
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="a non-numeric noise level reaches Scenario.__post_init__ as a str and raises "
-    "TypeError (traceback, exit 1) instead of an InputError (one line, exit 2)",
-)
 def test_simulate_non_numeric_sigma2_is_bad_input(run_cli: RunCli, tmp_path: Path) -> None:
-    status, _, stderr = run_cli(["simulate", "--out", str(tmp_path / "s.csv"), "--set", "noise.sigma2=abc"])
+    status, _, stderr = _simulate(run_cli, tmp_path / "s.csv", "noise.sigma2=abc")
     assert status == 2
-    _assert_one_line_error(stderr)
+    line = _assert_one_line_error(stderr)
+    assert "sigma2" in line and "'abc'" in line
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="cli._cmd_simulate resets the whole 'noise' group on --set noise.name=..., which also "
-    "drops the noise level (sigma2/snr); scenarios.build then defaults to sigma2 = 0, so the "
-    "record is silently noise-free (the CLI prints SNR = inf)",
-)
 def test_simulate_changing_noise_model_keeps_noise(run_cli: RunCli, tmp_path: Path) -> None:
+    """--set noise.name=white keeps the noise level (it is not a parameter of the old model)."""
     white, quiet = tmp_path / "white.csv", tmp_path / "quiet.csv"
-    assert run_cli(["simulate", "--out", str(white), "--set", "noise.name=white"])[0] == 0
-    assert run_cli(["simulate", "--out", str(quiet), "--set", "noise.name=white",
-                    "--set", "noise.sigma2=0"])[0] == 0
+    assert _simulate(run_cli, white, "noise.name=white")[0] == 0
+    assert _simulate(run_cli, quiet, "noise.name=white", "noise.sigma2=0")[0] == 0
     assert not np.array_equal(read_record(white).y, read_record(quiet).y)

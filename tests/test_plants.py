@@ -44,7 +44,10 @@ def _discrete_step(plant: DiscretePlant, n: int) -> np.ndarray:
 
 
 def test_paper_example_coefficients() -> None:
-    """Wang et al., Sec. 6: G(q) = 0.05597 q^-3 (q^-1 - 0.7244 q^-2)/(1 - 1.962 q^-1 + 0.9623 q^-2)."""
+    """Wang et al., Sec. 6, to four significant digits:
+
+    G(q) = 0.05597 q^-3 (q^-1 - 0.7244 q^-2) / (1 - 1.962 q^-1 + 0.9623 q^-2).
+    """
     g = plants.paper().discretize(H)
     assert g.na == 2 and g.nb == 2
     assert _sig4(g.b[0]) == 0.05597
@@ -133,8 +136,10 @@ def test_direct_feedthrough_plant_with_delay(delay: int | None, delay_s: float) 
     k = np.arange(200)
     # responses of order 1; first-order recursion, observed 3e-16
     np.testing.assert_allclose(
-        _discrete_step(g, k.size), _continuous_step(model.num, model.den, k * H - shift),
-        rtol=0, atol=1e-12,
+        _discrete_step(g, k.size),
+        _continuous_step(model.num, model.den, k * H - shift),
+        rtol=0,
+        atol=1e-12,
     )
 
 

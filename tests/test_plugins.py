@@ -108,7 +108,9 @@ def test_example_package_declares_its_entry_point() -> None:
     meta = tomllib.loads((EXAMPLE_DIR / "pyproject.toml").read_text())
     assert meta["project"]["entry-points"]["hbench"] == {EXAMPLE_ENTRY_POINT: EXAMPLE_MODULE}
     assert (EXAMPLE_DIR / EXAMPLE_MODULE / "__init__.py").is_file()
-    assert "pip install -e examples/hbench-example-plugin" in (EXAMPLE_DIR / "README.md").read_text()
+    assert (
+        "pip install -e examples/hbench-example-plugin" in (EXAMPLE_DIR / "README.md").read_text()
+    )
 
 
 def test_example_plugin_is_listed(run_cli: RunCli, example_plugin: ModuleType) -> None:
