@@ -185,14 +185,15 @@ class SelectionRule:
     ``nb`` (both methods): phases whose ``Var{Delta w^(l)}`` exceeds ``1 + tol_nb`` times the quiet
     level (the mean of the ``p - n0_b`` smallest) are active; nb is the last active phase within
     ``n0_b`` (Table 2). ``floor`` guards noise-free data: differences below ``floor`` times the
-    mean square of ``Delta y`` count as equal.
+    mean square of ``Delta y`` count as equal (the tables are evaluated from moments, exact up to
+    rounding of order 1e-16 of that mean square; any real noise is many decades above 1e-12).
     """
 
     method: str = "common-a"
     tol_na: float = 0.05
     tol_tau: float = 0.25
     tol_nb: float = 0.5
-    floor: float = 1e-18
+    floor: float = 1e-12
 
     def __post_init__(self) -> None:
         if self.method not in ("common-a", "row-min"):
@@ -260,45 +261,78 @@ def _select_row_min(V: np.ndarray, na_values: np.ndarray, rule: SelectionRule,
     return na_values[ia], tau
 
 
+def _blocks(q: np.ndarray) -> np.ndarray:
+    """Bit mask of the cyclic run of True containing each position: ``q`` (..., p) -> (..., p).
+
+    Positions that are False get mask 0.
+    """
+    p = q.shape[-1]
+    weights = 1 << np.arange(p)
+    mask = np.where(q, weights, 0)
+    out = mask.copy()
+    for direction in (1, -1):  # grow each run p - 1 steps both ways
+        reach = q.copy()
+        for step in range(1, p):
+            nxt = np.roll(q, -direction * step, axis=-1)
+            reach = reach & nxt
+            out = out | np.where(reach, np.roll(weights, -direction * step), 0)
+    return np.where(q, out, 0)
+
+
+def _popcount(m: np.ndarray) -> np.ndarray:
+    out = np.zeros_like(m)
+    v = m.copy()
+    while np.any(v):
+        out += v & 1
+        v >>= 1
+    return out
+
+
+def _last_of_block(mask: np.ndarray, p: int) -> np.ndarray:
+    """The last shift of a cyclic block given as a bit mask (the one whose successor is out)."""
+    bits = (mask[..., None] >> np.arange(p)) & 1  # (..., p)
+    succ = np.roll(bits, -1, axis=-1)
+    last = (bits == 1) & (succ == 0)
+    full = bits.all(axis=-1)
+    return np.where(full, p - 1, np.argmax(last, axis=-1))
+
+
 def _select_common_a(C: np.ndarray, na_values: np.ndarray, rule: SelectionRule,
                      floor: np.ndarray, allowed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     R, n_na, p, _ = C.shape
-    na_out = np.empty(R, dtype=int)
-    tau_out = np.empty(R, dtype=int)
-    for r in range(R):  # small tables (n_na x p x p) per run
-        best_per_order: dict[int, tuple[int, float, int]] = {}  # ia -> (support, level, tau)
-        for ia in range(n_na):
-            blocks: dict[tuple[int, ...], list[float]] = {}
-            ends: dict[tuple[int, ...], int] = {}
-            for s in range(p):
-                row = C[r, ia, s]
-                q = row <= (1 + rule.tol_tau) * row.min() + floor[r]
-                if not q[s]:
-                    continue  # the estimate from shift s does not explain shift s
-                length, end = _cyclic_run(q, s)
-                block = tuple(sorted((end - i) % p for i in range(length)))
-                blocks.setdefault(block, []).append(float(np.mean(row[list(block)])))
-                ends[block] = end
-            for block, levels in blocks.items():
-                if not allowed[ends[block]]:
-                    continue
-                cand = (len(levels), float(np.mean(levels)), ends[block])
-                cur = best_per_order.get(ia)
-                if cur is None or (cand[0], -cand[1]) > (cur[0], -cur[1]):
-                    best_per_order[ia] = cand
-        if not best_per_order:  # nothing explains itself: fall back to the paper's table
-            V = np.stack([C[r, :, s, s] for s in range(p)], axis=1)[None]
-            na_r, tau_r = _select_row_min(np.where(allowed[None, None, :], V, np.inf),
-                                          na_values, rule, floor[r : r + 1])
-            na_out[r], tau_out[r] = na_r[0], tau_r[0]
-            continue
-        # corroborated blocks (two or more shifts agree) whenever any order has one
-        support = min(2, max(v[0] for v in best_per_order.values()))
-        eligible = {ia: v for ia, v in best_per_order.items() if v[0] >= support}
-        best = min(v[1] for v in eligible.values())
-        ia = min(i for i, v in eligible.items() if v[1] <= (1 + rule.tol_na) * best + floor[r])
-        na_out[r], tau_out[r] = na_values[ia], eligible[ia][2]
-    return na_out, tau_out
+    fl = floor[:, None, None, None]
+    q = C <= (1 + rule.tol_tau) * C.min(axis=3, keepdims=True) + fl  # (R, n_na, s, s')
+    own = np.einsum("rass->ras", q)  # the estimate from s explains s
+    block = np.where(own, np.take_along_axis(
+        _blocks(q), np.arange(p)[None, None, :, None], axis=3)[..., 0], 0)  # (R, n_na, s)
+    valid = own & allowed[_last_of_block(block, p)]
+    # support: shifts of the same order whose own block is the same
+    same = (block[..., :, None] == block[..., None, :]) & valid[..., None, :]
+    support = np.where(valid, same.sum(axis=3), 0)
+    bits = ((block[..., None] >> np.arange(p)) & 1).astype(bool)  # (R, n_na, s, s')
+    level_s = np.where(bits, C, 0.0).sum(axis=3) / np.maximum(bits.sum(axis=3), 1)
+    # a block's level: mean over the shifts that support it
+    level = np.where(same, level_s[..., None, :], 0.0).sum(axis=3) / np.maximum(support, 1)
+    # per order: max support, then min level
+    key = np.where(valid, support - level / (np.abs(level).max() + 1.0) * 0.5, -np.inf)
+    best_s = np.argmax(key, axis=2)  # (R, n_na)
+    take = (lambda a: np.take_along_axis(a, best_s[..., None], axis=2)[..., 0])
+    sup_o, lev_o, blk_o = take(support), take(level), take(block)
+    has = np.isfinite(take(key))
+    need = np.minimum(2, np.where(has, sup_o, 0).max(axis=1, keepdims=True))
+    eligible = has & (sup_o >= need)
+    best = np.where(eligible, lev_o, np.inf).min(axis=1, keepdims=True)
+    ok = eligible & (lev_o <= (1 + rule.tol_na) * best + floor[:, None])
+    ia = np.argmax(ok, axis=1)
+    na = na_values[ia]
+    tau = _last_of_block(blk_o[np.arange(R), ia], p)
+    none = ~ok.any(axis=1)
+    if none.any():  # nothing explains itself: fall back to the paper's table
+        V = np.einsum("rass->ras", C[none])
+        na_f, tau_f = _select_row_min(np.where(allowed[None, None, :], V, np.inf), na_values,
+                                      rule, floor[none])
+        na[none], tau[none] = na_f, tau_f
+    return na, tau
 
 
 def _select_nb(var_dw: np.ndarray, nb_max: int, rule: SelectionRule,
@@ -342,9 +376,16 @@ def select_structure(
             raise InputError(f"tau_range must lie within [0, p) = [0, {p}), got {options.tau_range}")
     all_runs = np.arange(R)
     n_na = na_values.size
+    # one regression per shift with the largest order; every order uses its first columns and
+    # the same rows (those valid for the largest order), so V is compared on equal data
+    na_max = int(na_values.max())
+    full = [pp.quiet_regression(dy, p, na_max, (p,), s) for s in shifts]
+    full = [pp.QuietRegression(r.target, r.phi, r.k, fast=True) for r in full]
+    for reg in full:
+        reg._all_moments()  # once per shift; every order's truncation shares them
     C = np.empty((R, n_na, p, p))
     for i, na in enumerate(na_values):
-        regs = [pp.quiet_regression(dy, p, int(na), (p,), s) for s in shifts]
+        regs = [reg.truncate(int(na)) for reg in full]
         for s in shifts:
             theta = fit(regs[s], all_runs)[0]
             for s2 in shifts:

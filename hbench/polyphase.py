@@ -13,7 +13,7 @@ structure (na, nb, tau); callers group runs by structure.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import signal
@@ -52,27 +52,52 @@ class QuietRegression:
     """The quiet-phase equations (13), stacked over the requested phases.
 
     ``target[r, j] = Delta y(t_j)``, ``phi[r, j, :] = -[Delta y(t_j - 1) .. Delta y(t_j - na)]``;
-    ``k[j]`` is the slow index of row ``j`` (for instruments).
+    ``k[j]`` is the slow index of row ``j`` (for instruments). ``fast=True`` evaluates residual
+    mean squares from the cached moments (``yy - 2 theta.f + theta' R theta``): exact algebra,
+    but with rounding of order eps times ``yy`` (use it for selection tables, not final fits).
     """
 
     target: np.ndarray
     phi: np.ndarray
     k: np.ndarray
+    fast: bool = False
+    _moments: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def n(self) -> int:
         return self.target.shape[1]
 
+    @property
+    def na(self) -> int:
+        return self.phi.shape[2]
+
+    def _all_moments(self) -> np.ndarray:
+        if "M" not in self._moments:
+            Z = np.concatenate([self.target[:, :, None], self.phi], axis=2)
+            self._moments["M"] = np.matmul(Z.transpose(0, 2, 1), Z) / self.n
+        return self._moments["M"]
+
     def moments(self) -> tuple[np.ndarray, np.ndarray]:
         """``(Rm, f)``: ``(1/n) sum phi phi^T`` and ``(1/n) sum phi Delta y``."""
-        Rm = np.einsum("rji,rjk->rik", self.phi, self.phi) / self.n
-        f = np.einsum("rji,rj->ri", self.phi, self.target) / self.n
-        return Rm, f
+        M = self._all_moments()
+        return M[:, 1:, 1:], M[:, 1:, 0]
 
     def residual_ms(self, theta: np.ndarray) -> np.ndarray:
         """``(1/n) sum (Delta y - phi^T theta)^2`` per run."""
+        if self.fast:
+            M = self._all_moments()
+            Rm, f = M[:, 1:, 1:], M[:, 1:, 0]
+            return (M[:, 0, 0] - 2.0 * np.einsum("ri,ri->r", theta, f)
+                    + np.einsum("ri,rik,rk->r", theta, Rm, theta))
         res = self.target - np.einsum("rji,ri->rj", self.phi, theta)
         return np.mean(res**2, axis=1)
+
+    def truncate(self, na: int) -> QuietRegression:
+        """The same rows with the first ``na`` regressors (moments shared, not recomputed)."""
+        sub = QuietRegression(self.target, self.phi[:, :, :na], self.k, self.fast)
+        if "M" in self._moments:
+            sub._moments["M"] = self._moments["M"][:, : na + 1, : na + 1]
+        return sub
 
 
 def quiet_regression(

@@ -48,7 +48,7 @@ def cross_relation_numerator(dw_or_w: np.ndarray, p: int, tau: int, nb: int, t_m
             X[:, :, 2 * i + 1] = -prev[:, :, j]
             rows.append(X)
     X = np.concatenate(rows, axis=1)
-    G = np.einsum("rnk,rnl->rkl", X, X)
+    G = np.matmul(X.transpose(0, 2, 1), X)
     _, vecs = np.linalg.eigh(G)
     theta = vecs[:, :, 0]
     h0, h1 = theta[:, 0::2], theta[:, 1::2]
