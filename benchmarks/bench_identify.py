@@ -29,8 +29,13 @@ def batch(paper_scenario: Scenario):
 def test_identify_1000_runs(benchmark: BenchmarkFixture, batch, method: str) -> None:
     record, truth = batch
     m = registry().get("identifiers", method)()
-    est = benchmark.pedantic(identify, args=(m, record, IdentifyOptions(), truth), rounds=3,
-                             iterations=1, warmup_rounds=1)
+    est = benchmark.pedantic(
+        identify,
+        args=(m, record, IdentifyOptions(), truth),
+        rounds=3,
+        iterations=1,
+        warmup_rounds=1,
+    )
     assert est.U.shape == truth.U.shape
     benchmark.extra_info["runs_per_second"] = record.runs / benchmark.stats.stats.mean
 

@@ -18,6 +18,6 @@ except PackageNotFoundError:  # pragma: no cover - running from a source tree
 
 __all__ = ["__version__"]
 
-from hbench.hookspecs import hookimpl  # noqa: E402
+from hbench.hookspecs import hookimpl
 
 __all__ += ["hookimpl"]

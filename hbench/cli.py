@@ -10,7 +10,7 @@ import argparse
 import importlib
 import json
 import sys
-from collections.abc import Callable, Sequence  # noqa: F401
+from collections.abc import Callable, Sequence
 
 from hbench.errors import InputError
 
@@ -76,14 +76,20 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
             spec["noise"].pop("snr", None)
         if key.endswith(".name"):  # a new plugin: drop the old one's parameters (not the level)
             group = key.split(".")[0]
-            spec[group] = {k: v for k, v in spec.get(group, {}).items()
-                           if group == "noise" and k in ("sigma2", "snr")}
+            spec[group] = {
+                k: v
+                for k, v in spec.get(group, {}).items()
+                if group == "noise" and k in ("sigma2", "snr")
+            }
         scenarios.set_dotted(spec, key, value)
     scenario = scenarios.build(spec)
     record, truth = simulate(scenario, 1, np.random.default_rng(args.seed))
     path = write_record(record, args.out)
-    print(f"wrote {path} ({record.n_fast} fast samples, p = {record.p}, h = {record.h:g} s, "
-          f"SNR = {truth.snr[0]:.3g})", file=sys.stderr)
+    print(
+        f"wrote {path} ({record.n_fast} fast samples, p = {record.p}, h = {record.h:g} s, "
+        f"SNR = {truth.snr[0]:.3g})",
+        file=sys.stderr,
+    )
     return 0
 
 
@@ -115,8 +121,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--out", required=True, help="output file (.csv or .parquet)")
     p.add_argument("--seed", type=int, default=0, help="seed of the run (default 0)")
-    p.add_argument("--set", action="append", metavar="KEY=VALUE",
-                   help="override a scenario key (dotted), repeatable")
+    p.add_argument(
+        "--set",
+        action="append",
+        metavar="KEY=VALUE",
+        help="override a scenario key (dotted), repeatable",
+    )
     p.set_defaults(func=_cmd_simulate)
 
     for module_name in COMMAND_MODULES:

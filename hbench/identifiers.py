@@ -143,8 +143,9 @@ class Identifier:
         if options:
             raise InputError(f"method {self.name!r} takes no options, got {sorted(options)}")
 
-    def identify(self, record: Record, options: IdentifyOptions,
-                 truth: Truth | None = None) -> Estimate:
+    def identify(
+        self, record: Record, options: IdentifyOptions, truth: Truth | None = None
+    ) -> Estimate:
         """Estimate A, B, the structure and the inner signal from ``record``."""
         raise NotImplementedError
 
@@ -197,7 +198,9 @@ class SelectionRule:
 
     def __post_init__(self) -> None:
         if self.method not in ("common-a", "row-min"):
-            raise InputError(f"selection method must be 'common-a' or 'row-min', got {self.method!r}")
+            raise InputError(
+                f"selection method must be 'common-a' or 'row-min', got {self.method!r}"
+            )
         for name in ("tol_na", "tol_tau", "tol_nb"):
             if not getattr(self, name) >= 0:
                 raise InputError(f"selection {name} must be >= 0")
@@ -219,8 +222,10 @@ class Structure:
 def check_identifiable(p: int, options: IdentifyOptions) -> str:
     """Empty string, or why assumption A2 fails for this p."""
     if p < options.nb_max + 1:
-        return (f"not identifiable: p = {p} < n0_b + 1 = {options.nb_max + 1} "
-                "(assumption A2; Bai, Li & Dasgupta 2002)")
+        return (
+            f"not identifiable: p = {p} < n0_b + 1 = {options.nb_max + 1} "
+            "(assumption A2; Bai, Li & Dasgupta 2002)"
+        )
     return ""
 
 
@@ -248,8 +253,9 @@ def _longest_run(q: np.ndarray) -> tuple[int, int]:
     return best
 
 
-def _select_row_min(V: np.ndarray, na_values: np.ndarray, rule: SelectionRule,
-                    floor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _select_row_min(
+    V: np.ndarray, na_values: np.ndarray, rule: SelectionRule, floor: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     R = V.shape[0]
     best_per_na = V.min(axis=2)  # (R, n_na)
     best = best_per_na.min(axis=1, keepdims=True)
@@ -297,14 +303,20 @@ def _last_of_block(mask: np.ndarray, p: int) -> np.ndarray:
     return np.where(full, p - 1, np.argmax(last, axis=-1))
 
 
-def _select_common_a(C: np.ndarray, na_values: np.ndarray, rule: SelectionRule,
-                     floor: np.ndarray, allowed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    R, n_na, p, _ = C.shape
+def _select_common_a(
+    C: np.ndarray,
+    na_values: np.ndarray,
+    rule: SelectionRule,
+    floor: np.ndarray,
+    allowed: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    R, _n_na, p, _ = C.shape
     fl = floor[:, None, None, None]
     q = C <= (1 + rule.tol_tau) * C.min(axis=3, keepdims=True) + fl  # (R, n_na, s, s')
     own = np.einsum("rass->ras", q)  # the estimate from s explains s
-    block = np.where(own, np.take_along_axis(
-        _blocks(q), np.arange(p)[None, None, :, None], axis=3)[..., 0], 0)  # (R, n_na, s)
+    block = np.where(
+        own, np.take_along_axis(_blocks(q), np.arange(p)[None, None, :, None], axis=3)[..., 0], 0
+    )  # (R, n_na, s)
     valid = own & allowed[_last_of_block(block, p)]
     # support: shifts of the same order whose own block is the same
     same = (block[..., :, None] == block[..., None, :]) & valid[..., None, :]
@@ -316,7 +328,10 @@ def _select_common_a(C: np.ndarray, na_values: np.ndarray, rule: SelectionRule,
     # per order: max support, then min level
     key = np.where(valid, support - level / (np.abs(level).max() + 1.0) * 0.5, -np.inf)
     best_s = np.argmax(key, axis=2)  # (R, n_na)
-    take = (lambda a: np.take_along_axis(a, best_s[..., None], axis=2)[..., 0])
+
+    def take(a):
+        return np.take_along_axis(a, best_s[..., None], axis=2)[..., 0]
+
     sup_o, lev_o, blk_o = take(support), take(level), take(block)
     has = np.isfinite(take(key))
     need = np.minimum(2, np.where(has, sup_o, 0).max(axis=1, keepdims=True))
@@ -329,15 +344,17 @@ def _select_common_a(C: np.ndarray, na_values: np.ndarray, rule: SelectionRule,
     none = ~ok.any(axis=1)
     if none.any():  # nothing explains itself: fall back to the paper's table
         V = np.einsum("rass->ras", C[none])
-        na_f, tau_f = _select_row_min(np.where(allowed[None, None, :], V, np.inf), na_values,
-                                      rule, floor[none])
+        na_f, tau_f = _select_row_min(
+            np.where(allowed[None, None, :], V, np.inf), na_values, rule, floor[none]
+        )
         na[none], tau[none] = na_f, tau_f
     return na, tau
 
 
-def _select_nb(var_dw: np.ndarray, nb_max: int, rule: SelectionRule,
-               scale: np.ndarray) -> np.ndarray:
-    R, p = var_dw.shape
+def _select_nb(
+    var_dw: np.ndarray, nb_max: int, rule: SelectionRule, scale: np.ndarray
+) -> np.ndarray:
+    _R, p = var_dw.shape
     n_quiet = max(p - nb_max, 1)
     level = np.sort(var_dw, axis=1)[:, :n_quiet].mean(axis=1, keepdims=True)
     active = var_dw > (1 + rule.tol_nb) * level + (rule.floor * scale)[:, None]
@@ -373,7 +390,9 @@ def select_structure(
     if options.tau_range is not None:
         lo, hi = options.tau_range
         if not 0 <= lo <= hi < p:
-            raise InputError(f"tau_range must lie within [0, p) = [0, {p}), got {options.tau_range}")
+            raise InputError(
+                f"tau_range must lie within [0, p) = [0, {p}), got {options.tau_range}"
+            )
     all_runs = np.arange(R)
     n_na = na_values.size
     # one regression per shift with the largest order; every order uses its first columns and
@@ -398,8 +417,9 @@ def select_structure(
         allowed[lo : hi + 1] = True
     floor = rule.floor * scale
     if rule.method == "row-min":
-        na, tau = _select_row_min(np.where(allowed[None, None, :], V, np.inf), na_values, rule,
-                                  floor)
+        na, tau = _select_row_min(
+            np.where(allowed[None, None, :], V, np.inf), na_values, rule, floor
+        )
     else:
         na, tau = _select_common_a(C, na_values, rule, floor, allowed)
     if options.tau is not None:
@@ -413,8 +433,11 @@ def select_structure(
         a = np.concatenate([np.ones((idx.size, 1)), fit(reg, idx)[0]], axis=1)
         dw = pp.delta(pp.filtered_output(y[idx], a))
         var_dw[idx] = pp.phase_variances(dw, p, key[1], t_min=key[0] + 1)
-    nb = _select_nb(var_dw, options.nb_max, rule, scale) if options.nb is None else np.full(
-        R, int(options.nb))
+    nb = (
+        _select_nb(var_dw, options.nb_max, rule, scale)
+        if options.nb is None
+        else np.full(R, int(options.nb))
+    )
     return Structure(na=na, tau=tau, nb=nb, V=V, C=C, var_dw=var_dw, na_values=na_values)
 
 
@@ -422,7 +445,9 @@ def groups(*keys: np.ndarray) -> list[tuple[tuple[int, ...], np.ndarray]]:
     """Runs grouped by equal keys: ``[((k1, k2, ..), indices), ...]``."""
     stacked = np.stack(keys, axis=1)
     uniq, inv = np.unique(stacked, axis=0, return_inverse=True)
-    return [(tuple(int(v) for v in u), np.flatnonzero(inv.ravel() == i)) for i, u in enumerate(uniq)]
+    return [
+        (tuple(int(v) for v in u), np.flatnonzero(inv.ravel() == i)) for i, u in enumerate(uniq)
+    ]
 
 
 def check_a4(b: np.ndarray, tol: float = 1e-6) -> np.ndarray:
@@ -434,10 +459,17 @@ def empty_estimate(method: str, record: Record, reason: str, **info: Any) -> Est
     """An all-nan estimate flagged not identifiable (never an exception that stops a sweep)."""
     R, K = record.runs, record.n_slow
     return Estimate(
-        method=method, a=np.full((R, 1), np.nan), b=np.full((R, 1), np.nan),
-        na=np.zeros(R, int), nb=np.zeros(R, int), tau=np.zeros(R, int),
-        sigma2=np.full(R, np.nan), U=np.full((R, K), np.nan),
-        identifiable=np.zeros(R, bool), reason=[reason] * R, info=dict(info),
+        method=method,
+        a=np.full((R, 1), np.nan),
+        b=np.full((R, 1), np.nan),
+        na=np.zeros(R, int),
+        nb=np.zeros(R, int),
+        tau=np.zeros(R, int),
+        sigma2=np.full(R, np.nan),
+        U=np.full((R, K), np.nan),
+        identifiable=np.zeros(R, bool),
+        reason=[reason] * R,
+        info=dict(info),
     )
 
 
@@ -446,13 +478,16 @@ def pad(parts: Sequence[np.ndarray], width: int) -> np.ndarray:
     return np.stack([np.pad(p, (0, width - p.size)) for p in parts])
 
 
-def identify(method: Identifier, record: Record, options: IdentifyOptions,
-             truth: Truth | None = None) -> Estimate:
+def identify(
+    method: Identifier, record: Record, options: IdentifyOptions, truth: Truth | None = None
+) -> Estimate:
     """Run ``method`` on ``record`` showing it only what it declared it needs."""
     rec = record.withhold(method.needs)
     missing = [s for s in ("x", "r") if s in method.needs and getattr(rec, s) is None]
     if missing:
-        raise InputError(f"method {method.name!r} needs {', '.join(missing)}, absent from the record")
+        raise InputError(
+            f"method {method.name!r} needs {', '.join(missing)}, absent from the record"
+        )
     if "truth" in method.needs and truth is None:
         raise InputError(f"method {method.name!r} (an oracle) needs the simulation's truth")
     return method.identify(rec, options, truth if "truth" in method.needs else None)
@@ -467,12 +502,13 @@ InnerSignal = Callable[..., tuple[np.ndarray, int, str]]
 #: Why an ``inner`` step returned no estimate, by its label.
 REFUSALS = {
     "refused-nmp": "B(q) is not minimum phase: the direct inverse A(q)/B(q) is unstable and was "
-                   "refused (choose inverse='bezout' or 'auto')",
+    "refused (choose inverse='bezout' or 'auto')",
 }
 
 
-def inner_ls(y: np.ndarray, w: np.ndarray, a: np.ndarray, b: np.ndarray, p: int, tau: int,
-             t_min: int) -> tuple[np.ndarray, int, str]:
+def inner_ls(
+    y: np.ndarray, w: np.ndarray, a: np.ndarray, b: np.ndarray, p: int, tau: int, t_min: int
+) -> tuple[np.ndarray, int, str]:
     """The paper's inner-signal estimate, eq. (27), solved in O(K) (tridiagonal)."""
     sys = pp.simo_system(w, p, tau, t_min)
     h0, h1 = pp.simo_channels(b, p)
@@ -528,8 +564,10 @@ def blind_fit(
         bad = check_a4(bb)
         for j in idx[bad]:
             ok[j] = False
-            reason[j] = ("not identifiable: estimated B(1) = 0 (assumption A4): the inner signal "
-                         "is not unique")
+            reason[j] = (
+                "not identifiable: estimated B(1) = 0 (assumption A4): the inner signal "
+                "is not unique"
+            )
         good = idx[~bad]
         if good.size:
             sel = ~bad
@@ -542,8 +580,16 @@ def blind_fit(
     out_info["inverse"] = inverse
     out_info["pooled"] = pooled
     return Estimate(
-        method=method, a=a, b=b, na=st.na, nb=st.nb, tau=st.tau, sigma2=sigma2, U=U,
-        identifiable=ok, reason=reason,
+        method=method,
+        a=a,
+        b=b,
+        na=st.na,
+        nb=st.nb,
+        tau=st.tau,
+        sigma2=sigma2,
+        U=U,
+        identifiable=ok,
+        reason=reason,
         criteria={"V": st.V, "var_dw": st.var_dw, "na_values": st.na_values},
         info=out_info,
     )

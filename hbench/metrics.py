@@ -19,8 +19,9 @@ from hbench.errors import InputError
 SCALINGS = ("gain", "ls", "ls-affine")
 
 
-def fitness(U_est: np.ndarray, U: np.ndarray, scaling: str = "gain",
-            gain: float | np.ndarray | None = None) -> np.ndarray:
+def fitness(
+    U_est: np.ndarray, U: np.ndarray, scaling: str = "gain", gain: float | np.ndarray | None = None
+) -> np.ndarray:
     """Fitness in % per run (``nan`` where the estimate is absent).
 
     Parameters
@@ -63,7 +64,9 @@ def fitness(U_est: np.ndarray, U: np.ndarray, scaling: str = "gain",
     return np.where(n > 1, out, np.nan)
 
 
-def parameter_errors(params: dict[str, np.ndarray], truth: dict[str, float]) -> dict[str, np.ndarray]:
+def parameter_errors(
+    params: dict[str, np.ndarray], truth: dict[str, float]
+) -> dict[str, np.ndarray]:
     """``estimate - truth`` per parameter the truth has (``nan`` where the estimate lacks it)."""
     R = len(next(iter(params.values()))) if params else 0
     out = {}

@@ -3,9 +3,9 @@
 Indexing convention, used everywhere in hbench: fast sample ``t`` of the record; the inner signal
 changes only at ``t = k p`` (property (1)). A candidate shift ``s`` in ``[0, p)`` is the fractional
 delay tau; the paper shifts the output, ``y~(t) = y(t + s)``, and speaks of phase ``l = 1 .. p`` of
-period ``k``: here that is the record's sample ``t = k p + l + s``. With the right shift, phase l of
-``Delta w = Delta A(q) y`` carries ``b_l Delta U(k)`` for ``l = 1 .. nb`` ("active", eq. 11) and only
-noise for ``l = nb + 1 .. p`` ("quiet", eqs. 10, 12).
+period ``k``: here that is the record's sample ``t = k p + l + s``. With the right shift, phase
+l of ``Delta w = Delta A(q) y`` carries ``b_l Delta U(k)`` for ``l = 1 .. nb`` ("active", eq. 11)
+and only noise for ``l = nb + 1 .. p`` ("quiet", eqs. 10, 12).
 
 All functions are batched over runs (arrays ``(runs, ...)``, time last) for runs that share one
 structure (na, nb, tau); callers group runs by structure.
@@ -87,8 +87,11 @@ class QuietRegression:
         if self.fast:
             M = self._all_moments()
             Rm, f = M[:, 1:, 1:], M[:, 1:, 0]
-            return (M[:, 0, 0] - 2.0 * np.einsum("ri,ri->r", theta, f)
-                    + np.einsum("ri,rik,rk->r", theta, Rm, theta))
+            return (
+                M[:, 0, 0]
+                - 2.0 * np.einsum("ri,ri->r", theta, f)
+                + np.einsum("ri,rik,rk->r", theta, Rm, theta)
+            )
         res = self.target - np.einsum("rji,ri->rj", self.phi, theta)
         return np.mean(res**2, axis=1)
 
@@ -158,8 +161,10 @@ def bias_compensated(reg: QuietRegression) -> tuple[np.ndarray, np.ndarray]:
     return theta, sigma2
 
 
-def instruments(r: np.ndarray, k: np.ndarray, m: int, lag0: int = 1) -> tuple[np.ndarray, np.ndarray]:
-    """``zeta(k) = [r(k - lag0), ..., r(k - lag0 - m + 1)]`` (eq. 20 with lag0 = 1) and a row mask."""
+def instruments(
+    r: np.ndarray, k: np.ndarray, m: int, lag0: int = 1
+) -> tuple[np.ndarray, np.ndarray]:
+    """``zeta(k) = [r(k - lag0), .., r(k - lag0 - m + 1)]`` (eq. 20: lag0 = 1) and a row mask."""
     lags = lag0 + np.arange(m)
     idx = k[:, None] - lags[None, :]
     ok = np.all((idx >= 0) & (idx < r.shape[1]), axis=1)
@@ -194,7 +199,9 @@ def filtered_output(y: np.ndarray, a: np.ndarray) -> np.ndarray:
     return w
 
 
-def active_phase(dw: np.ndarray, p: int, l: int, shift: int, t_min: int) -> tuple[np.ndarray, np.ndarray]:
+def active_phase(
+    dw: np.ndarray, p: int, l: int, shift: int, t_min: int
+) -> tuple[np.ndarray, np.ndarray]:
     """``(Delta w(k p + l + shift), k)`` for every valid period ``k``."""
     k = phase_times(dw.shape[1], p, l, shift, t_min)
     return dw[:, k * p + l + shift], k
@@ -213,8 +220,12 @@ def phase_variances(dw: np.ndarray, p: int, shift: int, t_min: int) -> np.ndarra
     return np.mean(dw[:, t] ** 2, axis=1)
 
 
-def b_lsm(dw: np.ndarray, p: int, shift: int, nb: int, sigma2: np.ndarray, t_min: int) -> np.ndarray:
-    """Eq. (18), corrected signs: ``b_l = (mean dw1 dwl + sigma^2 delta(l-2)) / (mean dw1^2 - 2 sigma^2)``.
+def b_lsm(
+    dw: np.ndarray, p: int, shift: int, nb: int, sigma2: np.ndarray, t_min: int
+) -> np.ndarray:
+    """Eq. (18) with corrected signs.
+
+    ``b_l = (mean dw1 dwl + sigma^2 delta(l-2)) / (mean dw1^2 - 2 sigma^2)``.
 
     ``E{Delta e(kp+1) Delta e(kp+2)} = -sigma^2`` and ``E{Delta e^2} = 2 sigma^2`` give those signs.
     Returns ``(runs, nb)`` with ``b1 = 1``.
@@ -236,9 +247,10 @@ def b_ols(dw: np.ndarray, p: int, shift: int, nb: int, t_min: int) -> np.ndarray
     return b_lsm(dw, p, shift, nb, np.zeros(dw.shape[0]), t_min)
 
 
-def b_iv(dw: np.ndarray, r: np.ndarray, p: int, shift: int, nb: int, m: int, t_min: int,
-         lag0: int = 1) -> np.ndarray:
-    """Eq. (21): ``b_l = [(1/K) sum zeta dw1]^+ (1/K) sum zeta dwl`` with ``zeta(k) = r(k-1..k-m)``."""
+def b_iv(
+    dw: np.ndarray, r: np.ndarray, p: int, shift: int, nb: int, m: int, t_min: int, lag0: int = 1
+) -> np.ndarray:
+    """Eq. (21): ``b_l = [(1/K) sum zeta dw1]^+ (1/K) sum zeta dwl``, ``zeta(k) = r(k-1..k-m)``."""
     k = _common_periods(dw, p, shift, t_min, nb)
     Z, ok = instruments(r, k, m, lag0)
     k, Z = k[ok], Z[:, ok]
@@ -266,8 +278,9 @@ def simo_channels(b: np.ndarray, p: int) -> tuple[np.ndarray, np.ndarray]:
     return h0, h1
 
 
-def solve_tridiagonal(lower: np.ndarray, diag: np.ndarray, upper: np.ndarray,
-                      rhs: np.ndarray) -> np.ndarray:
+def solve_tridiagonal(
+    lower: np.ndarray, diag: np.ndarray, upper: np.ndarray, rhs: np.ndarray
+) -> np.ndarray:
     """Batched Thomas algorithm: ``diag`` and ``rhs`` ``(R, M)``, ``lower``/``upper`` ``(R, M-1)``.
 
     O(M) per run, vectorised over runs. Stable for the symmetric positive definite normal
@@ -354,7 +367,7 @@ def inner_signal_ls(sys: SimoSystem, h0: np.ndarray, h1: np.ndarray) -> np.ndarr
 def inner_signal_dense(sys: SimoSystem, h0: np.ndarray, h1: np.ndarray) -> np.ndarray:
     """Eq. (27) by a dense least-squares solve of ``H U = W`` (reference and benchmark baseline)."""
     R = h0.shape[0]
-    M, p = sys.valid.shape
+    M, _p = sys.valid.shape
     out = np.empty((R, M + 1))
     rows = np.argwhere(sys.valid)  # (eq, 2): period j, channel i
     for r in range(R):
@@ -390,15 +403,16 @@ def inner_signal_bezout(sys: SimoSystem, h0: np.ndarray, h1: np.ndarray) -> np.n
     return np.concatenate([np.full((U.shape[0], 1), np.nan), U], axis=1)
 
 
-def inner_signal_direct(y: np.ndarray, a: np.ndarray, b: np.ndarray, p: int, shift: int,
-                        n_first: int, M: int) -> np.ndarray:
+def inner_signal_direct(
+    y: np.ndarray, a: np.ndarray, b: np.ndarray, p: int, shift: int, n_first: int, M: int
+) -> np.ndarray:
     """Direct inverse (Bai & Fu): ``u~(t) = A(q)/B(q) y~(t)`` down-sampled, ``U~(n) = u~(p n)``.
 
     With ``B(q) = q^-1 (b1 + b2 q^-1 + ...)``: ``u~(t - 1) = A(q)/(b1 + b2 q^-1 + ..) y~(t)``, so
     ``U~(n)`` is the filter's output at ``y~(p n + 1)``. Filtered from rest over the record.
     Returns ``U~(n_first .. n_first + M - 1)``; unstable (growing) if B is not minimum phase.
     """
-    R, N = y.shape
+    R, _N = y.shape
     out = np.full((R, M), np.nan)
     for rr in range(R):  # lfilter takes one coefficient set; runs differ in (a, b)
         z = signal.lfilter(a[rr], b[rr], y[rr, shift:])

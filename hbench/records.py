@@ -85,7 +85,7 @@ class Record:
         return self.y.shape[1] // self.p
 
     @property
-    def T(self) -> float:  # noqa: N802 - the control literature's name
+    def T(self) -> float:
         """Slow (controller) period ``p h``."""
         return self.p * self.h
 
@@ -100,7 +100,10 @@ class Record:
 
     def select(self, index: slice | np.ndarray | list[int]) -> Record:
         """The sub-batch of runs ``index``."""
-        take = (lambda a: None if a is None else np.atleast_2d(a[index]))
+
+        def take(a):
+            return None if a is None else np.atleast_2d(a[index])
+
         return replace(self, y=take(self.y), x=take(self.x), r=take(self.r))
 
     def withhold(self, keep: frozenset[str] | set[str]) -> Record:

@@ -20,10 +20,30 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-FITNESS_COLUMNS = ["method", "nonlinearity", "p", "delay", "sigma2", "snr_mean", "n",
-                   "fitness_mean", "fitness_std"]
-BIAS_COLUMNS = ["method", "nonlinearity", "p", "delay", "sigma2", "parameter", "true", "mean",
-                "bias", "std", "n"]
+FITNESS_COLUMNS = [
+    "method",
+    "nonlinearity",
+    "p",
+    "delay",
+    "sigma2",
+    "snr_mean",
+    "n",
+    "fitness_mean",
+    "fitness_std",
+]
+BIAS_COLUMNS = [
+    "method",
+    "nonlinearity",
+    "p",
+    "delay",
+    "sigma2",
+    "parameter",
+    "true",
+    "mean",
+    "bias",
+    "std",
+    "n",
+]
 CELL_KEYS = ["method", "nonlinearity", "p", "delay", "sigma2"]
 
 
@@ -41,12 +61,22 @@ def aggregate(rows: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
     keys = ["method", "nonlinearity", "p", "delay", "_k"]
     fit = ok[ok["quantity"] == "fitness"]
     g = fit.groupby(keys, sort=True, dropna=False)
-    fitness = g.agg(sigma2=("sigma2", "first"), snr_mean=("snr", "mean"), n=("value", "count"),
-                    fitness_mean=("value", "mean"), fitness_std=("value", "std")).reset_index()
+    fitness = g.agg(
+        sigma2=("sigma2", "first"),
+        snr_mean=("snr", "mean"),
+        n=("value", "count"),
+        fitness_mean=("value", "mean"),
+        fitness_std=("value", "std"),
+    ).reset_index()
     par = ok[_is_param(ok["quantity"])]
     g = par.groupby([*keys, "quantity"], sort=True, dropna=False)
-    bias = g.agg(sigma2=("sigma2", "first"), true=("true", "first"), mean=("value", "mean"),
-                 std=("value", "std"), n=("value", "count")).reset_index()
+    bias = g.agg(
+        sigma2=("sigma2", "first"),
+        true=("true", "first"),
+        mean=("value", "mean"),
+        std=("value", "std"),
+        n=("value", "count"),
+    ).reset_index()
     bias["bias"] = bias["mean"] - bias["true"]
     bias = bias.rename(columns={"quantity": "parameter"})
     for t in (fitness, bias):
@@ -60,7 +90,10 @@ def aggregate(rows: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
 def to_markdown(table: pd.DataFrame, floatfmt: str = ".4g") -> str:
     """A GitHub-flavoured Markdown table (no extra dependency)."""
     cols = list(table.columns)
-    fmt = (lambda v: format(v, floatfmt) if isinstance(v, float) else str(v))
+
+    def fmt(v):
+        return format(v, floatfmt) if isinstance(v, float) else str(v)
+
     lines = ["| " + " | ".join(cols) + " |", "|" + "|".join("---" for _ in cols) + "|"]
     for _, row in table.iterrows():
         lines.append("| " + " | ".join(fmt(row[c]) for c in cols) + " |")
@@ -70,10 +103,21 @@ def to_markdown(table: pd.DataFrame, floatfmt: str = ".4g") -> str:
 def to_latex(table: pd.DataFrame, caption: str = "", floatfmt: str = ".4g") -> str:
     """A booktabs LaTeX table."""
     cols = list(table.columns)
-    esc = (lambda s: str(s).replace("_", r"\_").replace("%", r"\%"))
-    fmt = (lambda v: format(v, floatfmt) if isinstance(v, float) else esc(v))
-    out = [r"\begin{table}[ht]", r"\centering", r"\begin{tabular}{" + "l" * len(cols) + "}",
-           r"\toprule", " & ".join(esc(c) for c in cols) + r" \\", r"\midrule"]
+
+    def esc(s):
+        return str(s).replace("_", r"\_").replace("%", r"\%")
+
+    def fmt(v):
+        return format(v, floatfmt) if isinstance(v, float) else esc(v)
+
+    out = [
+        r"\begin{table}[ht]",
+        r"\centering",
+        r"\begin{tabular}{" + "l" * len(cols) + "}",
+        r"\toprule",
+        " & ".join(esc(c) for c in cols) + r" \\",
+        r"\midrule",
+    ]
     for _, row in table.iterrows():
         out.append(" & ".join(fmt(row[c]) for c in cols) + r" \\")
     out += [r"\bottomrule", r"\end{tabular}"]
@@ -100,17 +144,29 @@ def git_revision(path: Path | None = None) -> str:
     """The git revision of the source tree (``+dirty`` if modified), or ``unknown``."""
     here = path or Path(__file__).resolve().parent
     try:
-        rev = subprocess.run(["git", "rev-parse", "HEAD"], cwd=here, capture_output=True,
-                             text=True, timeout=5, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
-                               cwd=here, capture_output=True, text=True, timeout=5).stdout
+        rev = subprocess.run(
+            ["git", "rev-parse", "HEAD"],
+            cwd=here,
+            capture_output=True,
+            text=True,
+            timeout=5,
+            check=True,
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no"],
+            cwd=here,
+            capture_output=True,
+            text=True,
+            timeout=5,
+        ).stdout
         return rev + ("+dirty" if dirty.strip() else "")
     except (OSError, subprocess.SubprocessError):
         return "unknown"
 
 
-def provenance(config: Mapping[str, Any] | None = None, seeds: Mapping[str, Any] | None = None
-               ) -> dict[str, Any]:
+def provenance(
+    config: Mapping[str, Any] | None = None, seeds: Mapping[str, Any] | None = None
+) -> dict[str, Any]:
     """Package versions, git revision, platform, time, config and seeds."""
     versions = {}
     for pkg in ("hbench", "numpy", "scipy", "pandas", "pluggy", "hydra-core", "matplotlib"):

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from hbench.identifiers import Estimate, IdentifyOptions, Identifier, identify
+from hbench.identifiers import Estimate, Identifier, IdentifyOptions, identify
 from hbench.metrics import fitness
 from hbench.records import Record, Truth
 from hbench.simulate import Scenario, simulate
@@ -25,8 +25,18 @@ from hbench.simulate import Scenario, simulate
 #: Quantities written per run and method (besides the parameters a1.., b2..).
 QUANTITIES = ("fitness", "fitness_ls", "na", "nb", "tau", "sigma2_hat", "identifiable", "seconds")
 #: Identifying columns of a tidy row, in order.
-ID_COLUMNS = ("cell", "method", "nonlinearity", "plant", "p", "delay", "sigma2", "snr_target",
-              "run", "seed")
+ID_COLUMNS = (
+    "cell",
+    "method",
+    "nonlinearity",
+    "plant",
+    "p",
+    "delay",
+    "sigma2",
+    "snr_target",
+    "run",
+    "seed",
+)
 TIDY_COLUMNS = (*ID_COLUMNS, "quantity", "value", "true", "snr", "status", "error")
 
 
@@ -38,8 +48,15 @@ class CellResult:
     example: dict[str, Any] = field(default_factory=dict)
 
 
-def _rows_for(method: str, est: Estimate, truth: Truth, record: Record, seconds: float,
-              ids: Mapping[str, Any], start: int) -> list[dict[str, Any]]:
+def _rows_for(
+    method: str,
+    est: Estimate,
+    truth: Truth,
+    record: Record,
+    seconds: float,
+    ids: Mapping[str, Any],
+    start: int,
+) -> list[dict[str, Any]]:
     R = record.runs
     plant = truth.plant
     true = plant.true_params()
@@ -60,21 +77,42 @@ def _rows_for(method: str, est: Estimate, truth: Truth, record: Record, seconds:
     for i in range(R):
         status = "ok" if est.identifiable[i] else "not-identifiable"
         for q, (arr, tv) in values.items():
-            rows.append({**ids, "method": method, "run": start + i, "quantity": q,
-                         "value": float(arr[i]), "true": tv, "snr": float(truth.snr[i]),
-                         "status": status, "error": est.reason[i]})
+            rows.append(
+                {
+                    **ids,
+                    "method": method,
+                    "run": start + i,
+                    "quantity": q,
+                    "value": float(arr[i]),
+                    "true": tv,
+                    "snr": float(truth.snr[i]),
+                    "status": status,
+                    "error": est.reason[i],
+                }
+            )
     return rows
 
 
-def _failed_rows(method: str, truth: Truth, message: str, ids: Mapping[str, Any],
-                 start: int) -> list[dict[str, Any]]:
+def _failed_rows(
+    method: str, truth: Truth, message: str, ids: Mapping[str, Any], start: int
+) -> list[dict[str, Any]]:
     true = truth.plant.true_params()
     rows = []
     for i in range(truth.U.shape[0]):
         for q in (*QUANTITIES, *true):
-            rows.append({**ids, "method": method, "run": start + i, "quantity": q,
-                         "value": np.nan, "true": true.get(q, np.nan),
-                         "snr": float(truth.snr[i]), "status": "failed", "error": message})
+            rows.append(
+                {
+                    **ids,
+                    "method": method,
+                    "run": start + i,
+                    "quantity": q,
+                    "value": np.nan,
+                    "true": true.get(q, np.nan),
+                    "snr": float(truth.snr[i]),
+                    "status": "failed",
+                    "error": message,
+                }
+            )
     return rows
 
 
@@ -120,8 +158,11 @@ def run_cell(
     seq = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
     rng = np.random.default_rng(seq)
     ids = {
-        "cell": cell, "nonlinearity": scenario.nonlinearity.name, "plant": plant.name,
-        "p": scenario.p, "delay": plant.delay,
+        "cell": cell,
+        "nonlinearity": scenario.nonlinearity.name,
+        "plant": plant.name,
+        "p": scenario.p,
+        "delay": plant.delay,
         "sigma2": scenario.sigma2 if scenario.sigma2 is not None else np.nan,
         "snr_target": scenario.snr if scenario.snr is not None else np.nan,
         "seed": str(seq.entropy),
@@ -133,15 +174,20 @@ def run_cell(
         n = min(chunk, runs - done)
         record, truth = simulate(scenario, n, rng, start=done)
         if keep_example and not example:
-            example = {"x": record.x[0].copy(), "U": truth.U[0].copy(), "gain": plant.gain,
-                       "estimates": {}}
+            example = {
+                "x": record.x[0].copy(),
+                "U": truth.U[0].copy(),
+                "gain": plant.gain,
+                "estimates": {},
+            }
         for name, method in methods.items():
             t0 = time.perf_counter()
             try:
                 est = identify(method, record, options, truth)
-            except Exception as exc:  # noqa: BLE001 - a failing method must not stop the cell
+            except Exception as exc:
                 last = traceback.extract_tb(exc.__traceback__)[-1]
-                msg = f"{type(exc).__name__}: {exc} ({last.filename.rsplit('/', 1)[-1]}:{last.lineno})"
+                where = f"{last.filename.rsplit('/', 1)[-1]}:{last.lineno}"
+                msg = f"{type(exc).__name__}: {exc} ({where})"
                 rows.extend(_failed_rows(name, truth, " ".join(msg.split()), ids, done))
                 continue
             seconds = time.perf_counter() - t0
@@ -155,8 +201,9 @@ def run_cell(
     return CellResult(rows=frame, example=example)
 
 
-def methods_from_names(names: Sequence[str], options: Mapping[str, Mapping[str, Any]] | None = None
-                       ) -> dict[str, Identifier]:
+def methods_from_names(
+    names: Sequence[str], options: Mapping[str, Mapping[str, Any]] | None = None
+) -> dict[str, Identifier]:
     """Instantiate registered methods by name, with per-method options."""
     from hbench.errors import InputError
     from hbench.plugins import registry

@@ -28,8 +28,13 @@ PAPER_SECTION6: dict[str, Any] = {
     "plant": {"name": "paper", "delay": 3},
     "nonlinearity": {"name": "backlash", "d": 0.1},
     "controller": {"name": "p", "kp": 0.1},
-    "noise": {"name": "continuous", "num": [1.0], "den": [1.0, 0.32, 0.02], "method": "zoh",
-              "sigma2": 1e-3},
+    "noise": {
+        "name": "continuous",
+        "num": [1.0],
+        "den": [1.0, 0.32, 0.02],
+        "method": "zoh",
+        "sigma2": 1e-3,
+    },
     "reference": {"name": "rbs", "band": [0.0, 0.5], "amplitude": 1.0, "filter": "butter"},
     "T": 0.6,
     "p": 5,
@@ -64,8 +69,10 @@ def make(kind: str, spec: Mapping[str, Any]) -> Any:
         unknown = [k for k in spec if k not in params and not accepts_any]
         if unknown:
             known = ", ".join(k for k in params if k != "self") or "none"
-            raise InputError(f"{SINGULAR.get(kind, kind)} {name!r} has no "
-                             f"parameter {unknown[0]!r} (parameters: {known})")
+            raise InputError(
+                f"{SINGULAR.get(kind, kind)} {name!r} has no "
+                f"parameter {unknown[0]!r} (parameters: {known})"
+            )
     try:
         return factory(**spec)
     except TypeError as exc:

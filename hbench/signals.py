@@ -56,7 +56,7 @@ class RBS(Reference):
         self,
         band: Any = (0.0, 0.5),
         amplitude: float = 1.0,
-        filter: str = "butter",  # noqa: A002 - the user's word
+        filter: str = "butter",
         order: int = 8,
         burn_in: int = 200,
         per_run: bool = True,
@@ -123,8 +123,12 @@ class PRBS(Reference):
         self.per_run = bool(per_run)
 
     def params(self) -> dict[str, Any]:
-        return {"nbits": self.nbits, "hold": self.hold, "amplitude": self.amplitude,
-                "per_run": self.per_run}
+        return {
+            "nbits": self.nbits,
+            "hold": self.hold,
+            "amplitude": self.amplitude,
+            "per_run": self.per_run,
+        }
 
     def draw(self, rng: np.random.Generator, K: int) -> np.ndarray:
         state = rng.integers(0, 2, size=self.nbits)

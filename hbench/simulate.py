@@ -1,10 +1,10 @@
 """The sampled-data closed loop with output fast-sampling (the paper's Figure 1), batched over runs.
 
-At each slow instant ``n`` the controller reads ``y(p n) = y0(p n) + v(p n)``, outputs ``x(n)``, the
-actuator gives ``U(n) = f(x(n))`` (with memory where the model has it), and the ZOH holds
-``u(t) = U(n)`` for ``t = p n .. p n + p - 1``. The fast-rate plant ``q^-delay B/A`` is lifted to the
-slow rate, so one slow step is one matrix product over the batch; the loop over time is forced by
-the feedback and the actuator's memory, and its body is array operations over runs only.
+At each slow instant ``n`` the controller reads ``y(p n) = y0(p n) + v(p n)``, outputs ``x(n)``,
+the actuator gives ``U(n) = f(x(n))`` (with memory where the model has it), and the ZOH holds
+``u(t) = U(n)`` for ``t = p n .. p n + p - 1``. The fast-rate plant ``q^-delay B/A`` is lifted to
+the slow rate, so one slow step is one matrix product over the batch; the loop over time is forced
+by the feedback and the actuator's memory, and its body is array operations over runs only.
 """
 
 from __future__ import annotations
@@ -86,7 +86,9 @@ class Scenario:
         if self.snr is not None and not self.snr > 0:
             raise InputError(f"snr must be > 0, got {self.snr}")
         if self.K < 2:
-            raise InputError(f"duration {self.duration} s holds fewer than 2 periods of T = {self.T}")
+            raise InputError(
+                f"duration {self.duration} s holds fewer than 2 periods of T = {self.T}"
+            )
 
     @property
     def h(self) -> float:
@@ -94,7 +96,7 @@ class Scenario:
         return self.T / self.p
 
     @property
-    def K(self) -> int:  # noqa: N802
+    def K(self) -> int:
         """Number of slow samples."""
         return int(np.floor(self.duration / self.T + 1e-9))
 
@@ -110,14 +112,23 @@ class Scenario:
         plant = self.discrete_plant
         return {
             "name": self.name,
-            "plant": {"name": plant.name, "a": plant.a.tolist(), "b": plant.b.tolist(),
-                      "delay": plant.delay},
+            "plant": {
+                "name": plant.name,
+                "a": plant.a.tolist(),
+                "b": plant.b.tolist(),
+                "delay": plant.delay,
+            },
             "nonlinearity": {"name": self.nonlinearity.name, **self.nonlinearity.params()},
             "controller": {"name": self.controller.name, **self.controller.params()},
             "noise": {"name": self.noise.name, **self.noise.params()},
             "reference": {"name": self.reference.name, **self.reference.params()},
-            "T": self.T, "p": self.p, "h": self.h, "duration": self.duration, "K": self.K,
-            "sigma2": self.sigma2, "snr": self.snr,
+            "T": self.T,
+            "p": self.p,
+            "h": self.h,
+            "duration": self.duration,
+            "K": self.K,
+            "sigma2": self.sigma2,
+            "snr": self.snr,
         }
 
 
@@ -267,8 +278,8 @@ def simulate(
     rho = closed_loop_radius(plant, sc.controller, p)
     if rho >= 1.0:
         raise UnstableError(
-            f"closed loop of scenario {sc.name!r} is unstable (linearised with the actuator as unit "
-            f"gain, spectral radius {rho:.4g} >= 1): lower the controller gain"
+            f"closed loop of scenario {sc.name!r} is unstable (linearised with the actuator as "
+            f"unit gain, spectral radius {rho:.4g} >= 1): lower the controller gain"
         )
     streams = run_streams(rng, runs, ("reference", "noise"), start=start)
     r = sc.reference.generate(streams["reference"], K)
@@ -320,7 +331,12 @@ def simulate(
         raise UnstableError(f"closed loop of scenario {sc.name!r} diverged (non-finite output)")
     y = y0 + v
     record = Record(
-        y=y, x=x, r=r, p=p, h=sc.h, source="simulation",
+        y=y,
+        x=x,
+        r=r,
+        p=p,
+        h=sc.h,
+        source="simulation",
         meta={"scenario": sc.name, "start": start},
     )
     truth = Truth(U=U, y0=y0, v=v, plant=plant, sigma2=sigma2, snr=_snr(y0, v))

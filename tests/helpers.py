@@ -36,7 +36,12 @@ def sim(runs: int = 2, seed: int = 0, **overrides: Any) -> tuple[Record, Truth]:
     return simulate(scenarios.build(paper_spec(**overrides)), runs, np.random.default_rng(seed))
 
 
-def run_method(name: str, record: Record, truth: Truth | None = None,
-               options: IdentifyOptions | None = None, **method_options: Any) -> Estimate:
+def run_method(
+    name: str,
+    record: Record,
+    truth: Truth | None = None,
+    options: IdentifyOptions | None = None,
+    **method_options: Any,
+) -> Estimate:
     cls = registry().get("identifiers", name)
     return identify(cls(**method_options), record, options or IdentifyOptions(), truth)

@@ -13,7 +13,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from hbench.identifiers import Estimate, IdentifyOptions, Identifier, identify
+from hbench.identifiers import Estimate, Identifier, IdentifyOptions, identify
 from hbench.metrics import fitness
 from hbench.plugins import registry
 from hbench.records import Record

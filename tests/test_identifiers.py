@@ -57,8 +57,7 @@ def test_noise_free_sigma2_estimate_is_zero(noise_free):
 def test_pooled_denominator_exact(method):
     record, truth = sim(runs=2, seed=3, noise__sigma2=0.0)
     est = run_method(method, record, truth, pooled=True)
-    np.testing.assert_allclose(est.a[:, :2], np.broadcast_to(truth.plant.a[1:], (2, 2)),
-                               atol=1e-8)
+    np.testing.assert_allclose(est.a[:, :2], np.broadcast_to(truth.plant.a[1:], (2, 2)), atol=1e-8)
 
 
 #: ARX noise g e / A(q) with g = 0.01: sigma^2 then spans the paper's equation-noise levels (its
@@ -75,8 +74,9 @@ def test_consistent_under_arx_noise(method, sigma2):
 
     100 runs, fixed seed; each parameter's mean within 3 SE of the truth.
     """
-    record, truth = sim(runs=100, seed=2024, noise__name="arx", noise__gain=ARX_GAIN,
-                        noise__sigma2=sigma2)
+    record, truth = sim(
+        runs=100, seed=2024, noise__name="arx", noise__gain=ARX_GAIN, noise__sigma2=sigma2
+    )
     est = run_method(method, record, options=TRUE_STRUCTURE)
     for key, true in truth.plant.true_params().items():
         vals = est.params()[key]
@@ -86,8 +86,9 @@ def test_consistent_under_arx_noise(method, sigma2):
 
 def test_ordinary_ls_is_biased_under_noise():
     """The compensation matters: OLS (bai-fu's A) is biased where the LSM is not (same data)."""
-    record, truth = sim(runs=100, seed=2024, noise__name="arx", noise__gain=ARX_GAIN,
-                        noise__sigma2=1e-2)
+    record, truth = sim(
+        runs=100, seed=2024, noise__name="arx", noise__gain=ARX_GAIN, noise__sigma2=1e-2
+    )
     a1 = truth.plant.a[1]
     ols = run_method("bai-fu", record, options=TRUE_STRUCTURE).params()["a1"]
     lsm = run_method("wang-lsm", record, options=TRUE_STRUCTURE).params()["a1"]
@@ -99,8 +100,7 @@ def test_ordinary_ls_is_biased_under_noise():
 @pytest.mark.parametrize("method", ["wang-lsm", "wang-iv"])
 def test_selection_picks_true_structure(method):
     """Section 6 steps (i)-(iii), automatic: na = 2, tau = 3, nb = 2 in >= 95 of 100 runs."""
-    record, _ = sim(runs=100, seed=99, noise__name="arx", noise__gain=ARX_GAIN,
-                    noise__sigma2=1e-3)
+    record, _ = sim(runs=100, seed=99, noise__name="arx", noise__gain=ARX_GAIN, noise__sigma2=1e-3)
     est = run_method(method, record)
     hits = np.sum((est.na == 2) & (est.tau == 3) & (est.nb == 2))
     assert hits >= 95, (hits, np.unique(est.na), np.unique(est.tau), np.unique(est.nb))
@@ -130,8 +130,15 @@ def test_a2_not_identifiable_is_flagged(method):
 @pytest.mark.parametrize("method", ["wang-lsm", "wang-iv", "bai-fu"])
 def test_a4_zero_at_one_is_flagged(method):
     """B(1) = 0 (assumption A4): the inner signal is not unique; flagged, no exception."""
-    record, truth = sim(runs=2, seed=1, noise__sigma2=0.0, plant__name="discrete",
-                        plant__a=[1.0, -1.5, 0.7], plant__b=[1.0, -1.0], plant__delay=1)
+    record, truth = sim(
+        runs=2,
+        seed=1,
+        noise__sigma2=0.0,
+        plant__name="discrete",
+        plant__a=[1.0, -1.5, 0.7],
+        plant__b=[1.0, -1.0],
+        plant__delay=1,
+    )
     est = run_method(method, record, truth, options=IdentifyOptions(na=2, nb=2, tau=1))
     assert check_a4(est.b).all()
     assert not est.identifiable.any()
@@ -141,8 +148,14 @@ def test_a4_zero_at_one_is_flagged(method):
 def test_bai_fu_on_nonminimum_phase_plant():
     """A zero outside the unit circle: the direct inverse diverges; 'auto' switches to the Bezout
     combiner (exact noise-free); 'refuse' says why it gives no inner signal."""
-    record, truth = sim(runs=1, seed=4, noise__sigma2=0.0, plant__name="nmp",
-                        plant__delay=1, reference__band=[0.0, 1.0])
+    record, truth = sim(
+        runs=1,
+        seed=4,
+        noise__sigma2=0.0,
+        plant__name="nmp",
+        plant__delay=1,
+        reference__band=[0.0, 1.0],
+    )
     assert not truth.plant.is_minimum_phase
     opts = IdentifyOptions(na=2, nb=2, tau=truth.plant.tau(5))
     auto = run_method("bai-fu", record, truth, options=opts)

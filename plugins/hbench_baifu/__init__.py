@@ -20,7 +20,7 @@ import numpy as np
 from hbench import polyphase as pp
 from hbench.errors import InputError
 from hbench.hookspecs import Register, hookimpl
-from hbench.identifiers import Estimate, IdentifyOptions, Identifier, SelectionRule, blind_fit
+from hbench.identifiers import Estimate, Identifier, IdentifyOptions, SelectionRule, blind_fit
 from hbench.records import Record, Truth
 
 INVERSES = ("auto", "direct", "bezout", "refuse")
@@ -37,17 +37,19 @@ def inverse_inner(choice: str):
         sys = pp.simo_system(w, p, tau, t_min)
         n_first = sys.n0 - 1
         M = sys.W.shape[1] + 1
-        nmp = np.array([np.any(np.abs(np.roots(bb)) >= 1.0) if bb.size > 1 else False
-                        for bb in b])
-        use_direct = (~nmp) if choice in ("auto", "refuse") else np.full(b.shape[0], choice == "direct")
+        nmp = np.array([np.any(np.abs(np.roots(bb)) >= 1.0) if bb.size > 1 else False for bb in b])
+        use_direct = (
+            (~nmp) if choice in ("auto", "refuse") else np.full(b.shape[0], choice == "direct")
+        )
         U = np.full((b.shape[0], M), np.nan)
         if use_direct.any():
-            U[use_direct] = pp.inner_signal_direct(y[use_direct], a[use_direct], b[use_direct], p,
-                                                   tau, n_first, M)
+            U[use_direct] = pp.inner_signal_direct(
+                y[use_direct], a[use_direct], b[use_direct], p, tau, n_first, M
+            )
         rest = ~use_direct
         if rest.any() and choice != "refuse":
             h0, h1 = pp.simo_channels(b[rest], p)
-            U[rest] = pp.inner_signal_bezout(sys, h0, h1)[:, : M]
+            U[rest] = pp.inner_signal_bezout(sys, h0, h1)[:, :M]
         if choice == "refuse" and rest.any():
             label = "refused-nmp"  # runs without an estimate get this reason in blind_fit
         elif use_direct.all():
@@ -67,14 +69,17 @@ class BaiFu(Identifier):
 
     def __init__(self, inverse: str = "auto", pooled: bool = True) -> None:
         if inverse not in INVERSES:
-            raise InputError(f"bai-fu inverse must be one of {', '.join(INVERSES)}, got {inverse!r}")
+            raise InputError(
+                f"bai-fu inverse must be one of {', '.join(INVERSES)}, got {inverse!r}"
+            )
         self.inverse, self.pooled = inverse, bool(pooled)
 
     def options(self) -> dict[str, Any]:
         return {"inverse": self.inverse, "pooled": self.pooled}
 
-    def identify(self, record: Record, options: IdentifyOptions,
-                 truth: Truth | None = None) -> Estimate:
+    def identify(
+        self, record: Record, options: IdentifyOptions, truth: Truth | None = None
+    ) -> Estimate:
         def denominator(reg, idx):
             theta, s2, _ = pp.ols(reg)
             return theta, s2 / 2.0
@@ -82,9 +87,17 @@ class BaiFu(Identifier):
         def numerator(dw, tau, nb, sigma2, idx):
             return pp.b_ols(dw, record.p, tau, nb, t_min=int(np.argmin(np.isnan(dw[0]))))
 
-        return blind_fit(self.name, record, options, denominator=denominator,
-                         numerator=numerator, inner=inverse_inner(self.inverse),
-                         pooled=self.pooled, rule=SelectionRule(), info=self.options())
+        return blind_fit(
+            self.name,
+            record,
+            options,
+            denominator=denominator,
+            numerator=numerator,
+            inner=inverse_inner(self.inverse),
+            pooled=self.pooled,
+            rule=SelectionRule(),
+            info=self.options(),
+        )
 
 
 @hookimpl

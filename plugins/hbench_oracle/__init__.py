@@ -10,19 +10,19 @@ from __future__ import annotations
 from typing import ClassVar
 
 import numpy as np
+from hbench_baifu import inverse_inner
 
 from hbench import polyphase as pp
 from hbench.hookspecs import Register, hookimpl
 from hbench.identifiers import (
     Estimate,
-    IdentifyOptions,
     Identifier,
+    IdentifyOptions,
     check_identifiable,
     empty_estimate,
     inner_ls,
 )
 from hbench.records import Record, Truth
-from hbench_baifu import inverse_inner
 
 
 class Oracle(Identifier):
@@ -35,8 +35,9 @@ class Oracle(Identifier):
     def _inner(self):
         return inner_ls
 
-    def identify(self, record: Record, options: IdentifyOptions,
-                 truth: Truth | None = None) -> Estimate:
+    def identify(
+        self, record: Record, options: IdentifyOptions, truth: Truth | None = None
+    ) -> Estimate:
         assert truth is not None
         plant, p, R, K = truth.plant, record.p, record.runs, record.n_slow
         why = check_identifiable(p, options) if plant.nb >= p else ""
@@ -48,9 +49,16 @@ class Oracle(Identifier):
         w = pp.filtered_output(record.y, a)
         Ut, n_first, label = self._inner()(record.y, w, a, b, p, tau, plant.na)
         return Estimate(
-            method=self.name, a=a[:, 1:], b=b, na=np.full(R, plant.na), nb=np.full(R, plant.nb),
-            tau=np.full(R, tau), sigma2=truth.sigma2.copy(),
-            U=pp.align(Ut, n_first, m, K), identifiable=np.ones(R, bool), reason=[""] * R,
+            method=self.name,
+            a=a[:, 1:],
+            b=b,
+            na=np.full(R, plant.na),
+            nb=np.full(R, plant.nb),
+            tau=np.full(R, tau),
+            sigma2=truth.sigma2.copy(),
+            U=pp.align(Ut, n_first, m, K),
+            identifiable=np.ones(R, bool),
+            reason=[""] * R,
             info={"inverse": {label: R}, "oracle": True},
         )
 

@@ -20,16 +20,18 @@ import numpy as np
 
 from hbench import polyphase as pp
 from hbench.hookspecs import Register, hookimpl
-from hbench.identifiers import Estimate, IdentifyOptions, Identifier, blind_fit
+from hbench.identifiers import Estimate, Identifier, IdentifyOptions, blind_fit
 from hbench.records import Record, Truth
 
 
-def cross_relation_numerator(dw_or_w: np.ndarray, p: int, tau: int, nb: int, t_min: int) -> np.ndarray:
+def cross_relation_numerator(
+    dw_or_w: np.ndarray, p: int, tau: int, nb: int, t_min: int
+) -> np.ndarray:
     """b (b1 = 1) from the cross-relation equations of the SIMO channels built on ``w``.
 
-    For channels ``i < j``: ``h_j(0) w_i(n) + h_j(1) w_i(n-1) - h_i(0) w_j(n) - h_i(1) w_j(n-1) = 0``
-    (noise-free), linear in ``theta = [h_1(0), h_1(1), .., h_p(0), h_p(1)]``. ``theta`` is the
-    eigenvector of the smallest eigenvalue of the cross-relation Gram matrix; then
+    For channels ``i < j``:
+    ``h_j(0) w_i(n) + h_j(1) w_i(n-1) - h_i(0) w_j(n) - h_i(1) w_j(n-1) = 0`` (noise-free),
+    linear in ``theta = [h_1(0), h_1(1), .., h_p(0), h_p(1)]``. ``theta`` is the eigenvector of the smallest eigenvalue of the cross-relation Gram matrix; then
     ``b_l = h_l(0) - h_{l-1}(0)`` averaged with ``h_{l-1}(1) - h_l(1)``, normalised to b1 = 1.
     """
     w = dw_or_w
@@ -69,15 +71,17 @@ class SunLiuSano(Identifier):
     """Sun, Liu & Sano (1999) variant -- a reconstruction (see the module docstring)."""
 
     name: ClassVar[str] = "sun-liu-sano"
-    summary: ClassVar[str] = ("Sun, Liu & Sano 1999 (reconstruction): compensated LS A, "
-                              "cross-relation B, MINT inverse")
+    summary: ClassVar[str] = (
+        "Sun, Liu & Sano 1999 (reconstruction): compensated LS A, cross-relation B, MINT inverse"
+    )
     reconstruction: ClassVar[bool] = True
 
     def options(self) -> dict[str, Any]:
         return {"pooled": True, "reconstruction": True}
 
-    def identify(self, record: Record, options: IdentifyOptions,
-                 truth: Truth | None = None) -> Estimate:
+    def identify(
+        self, record: Record, options: IdentifyOptions, truth: Truth | None = None
+    ) -> Estimate:
         p = record.p
 
         def denominator(reg, idx):
@@ -89,12 +93,20 @@ class SunLiuSano(Identifier):
             t0 = int(np.argmin(np.isnan(dw[0])))
             w = np.full_like(dw, np.nan)
             w[:, t0 - 1 :] = np.concatenate(
-                [np.zeros((dw.shape[0], 1)), np.cumsum(dw[:, t0:], axis=1)], axis=1)
+                [np.zeros((dw.shape[0], 1)), np.cumsum(dw[:, t0:], axis=1)], axis=1
+            )
             return cross_relation_numerator(w, p, tau, nb, t0)
 
-        return blind_fit(self.name, record, options, denominator=denominator,
-                         numerator=numerator, inner=mint_inner, pooled=True,
-                         info=self.options())
+        return blind_fit(
+            self.name,
+            record,
+            options,
+            denominator=denominator,
+            numerator=numerator,
+            inner=mint_inner,
+            pooled=True,
+            info=self.options(),
+        )
 
 
 @hookimpl

@@ -19,8 +19,8 @@ from hbench.errors import InputError
 from hbench.hookspecs import Register, hookimpl
 from hbench.identifiers import (
     Estimate,
-    IdentifyOptions,
     Identifier,
+    IdentifyOptions,
     SelectionRule,
     blind_fit,
 )
@@ -28,15 +28,27 @@ from hbench.records import Record, Truth
 
 
 class _Wang(Identifier):
-    def __init__(self, pooled: bool = False, selection: str = "common-a", tol_na: float = 0.05,
-                 tol_tau: float = 0.25, tol_nb: float = 0.5) -> None:
+    def __init__(
+        self,
+        pooled: bool = False,
+        selection: str = "common-a",
+        tol_na: float = 0.05,
+        tol_tau: float = 0.25,
+        tol_nb: float = 0.5,
+    ) -> None:
         self.pooled = bool(pooled)
-        self.rule = SelectionRule(method=selection, tol_na=float(tol_na),
-                                  tol_tau=float(tol_tau), tol_nb=float(tol_nb))
+        self.rule = SelectionRule(
+            method=selection, tol_na=float(tol_na), tol_tau=float(tol_tau), tol_nb=float(tol_nb)
+        )
 
     def options(self) -> dict[str, Any]:
-        return {"pooled": self.pooled, "selection": self.rule.method, "tol_na": self.rule.tol_na,
-                "tol_tau": self.rule.tol_tau, "tol_nb": self.rule.tol_nb}
+        return {
+            "pooled": self.pooled,
+            "selection": self.rule.method,
+            "tol_na": self.rule.tol_na,
+            "tol_tau": self.rule.tol_tau,
+            "tol_nb": self.rule.tol_nb,
+        }
 
 
 class WangLSM(_Wang):
@@ -56,17 +68,25 @@ class WangLSM(_Wang):
     name: ClassVar[str] = "wang-lsm"
     summary: ClassVar[str] = "Wang et al. 2007: bias-compensated LSM (eqs. 14, 15, 18, 27)"
 
-    def identify(self, record: Record, options: IdentifyOptions,
-                 truth: Truth | None = None) -> Estimate:
+    def identify(
+        self, record: Record, options: IdentifyOptions, truth: Truth | None = None
+    ) -> Estimate:
         def denominator(reg: pp.QuietRegression, idx: np.ndarray):
             return pp.bias_compensated(reg)
 
         def numerator(dw, tau, nb, sigma2, idx):
             return pp.b_lsm(dw, record.p, tau, nb, sigma2, t_min=int(np.argmin(np.isnan(dw[0]))))
 
-        return blind_fit(self.name, record, options, denominator=denominator,
-                         numerator=numerator, pooled=self.pooled, rule=self.rule,
-                         info=self.options())
+        return blind_fit(
+            self.name,
+            record,
+            options,
+            denominator=denominator,
+            numerator=numerator,
+            pooled=self.pooled,
+            rule=self.rule,
+            info=self.options(),
+        )
 
 
 class WangIV(_Wang):
@@ -76,15 +96,17 @@ class WangIV(_Wang):
     bias-compensated LSM's table (``structure="lsm"``, default: the paper reads both tables and
     cross-checks; the IV's table is noisier and its over-fitted orders win by chance) or from the
     IV's own table (``structure="iv"``); the IV then estimates A and B with that structure.
-    ``zeta(k) = [r(k - lag0), ..., r(k - lag0 - m + 1)]`` with the paper's ``lag0 = 1``; the extended
-    IV solution uses the Moore-Penrose pseudo-inverse when ``m > na``. Consistent under coloured
-    noise as long as r is independent of it (A1); larger variance than the LSM. The noise variance
+    ``zeta(k) = [r(k - lag0), ..., r(k - lag0 - m + 1)]`` with the paper's ``lag0 = 1``; the
+    extended IV solution uses the Moore-Penrose pseudo-inverse when ``m > na``. Consistent under
+    coloured noise as long as r is independent of it (A1); larger variance than the LSM. The noise variance
     reported is half the mean square of the quiet-phase residual.
     """
 
     name: ClassVar[str] = "wang-iv"
     needs: ClassVar[frozenset[str]] = frozenset({"r"})
-    summary: ClassVar[str] = "Wang et al. 2007: instrumental variables from past r (eqs. 20, 21, 27)"
+    summary: ClassVar[str] = (
+        "Wang et al. 2007: instrumental variables from past r (eqs. 20, 21, 27)"
+    )
 
     def __init__(self, m: int = 6, lag0: int = 1, structure: str = "lsm", **kwargs: Any) -> None:
         super().__init__(**kwargs)
@@ -97,8 +119,9 @@ class WangIV(_Wang):
     def options(self) -> dict[str, Any]:
         return {**super().options(), "m": self.m, "lag0": self.lag0, "structure": self.structure}
 
-    def identify(self, record: Record, options: IdentifyOptions,
-                 truth: Truth | None = None) -> Estimate:
+    def identify(
+        self, record: Record, options: IdentifyOptions, truth: Truth | None = None
+    ) -> Estimate:
         r = record.r
         m = max(self.m, options.na_range[1] if options.na is None else options.na)
 
@@ -116,9 +139,17 @@ class WangIV(_Wang):
             def selector(reg: pp.QuietRegression, idx: np.ndarray):
                 return pp.bias_compensated(reg)
 
-        return blind_fit(self.name, record, options, denominator=denominator,
-                         numerator=numerator, pooled=self.pooled, rule=self.rule,
-                         info=self.options(), selector=selector)
+        return blind_fit(
+            self.name,
+            record,
+            options,
+            denominator=denominator,
+            numerator=numerator,
+            pooled=self.pooled,
+            rule=self.rule,
+            info=self.options(),
+            selector=selector,
+        )
 
 
 @hookimpl
