@@ -1,13 +1,12 @@
 """The paper's Section 6 example with its continuous-filter noise: Table 4, LSM and IVM rows.
 
-100 runs per noise level (about 2 s in all). Compared cell by cell with the published
-mean +- std (b2's sign corrected, rows sigma^2 = 1e-4, 5e-4, 1e-3 per NOTES.md):
-|ours - paper| <= 3 SE with SE = sqrt(s_ours^2 + s_paper^2) / sqrt(100), both means being averages of 100 runs. Where a
-published mean is itself more than 3 of its own SE from the true value (the paper's IVM b2 at
-sigma^2 = 1e-3: -0.7171 +- 0.0188, 3.9 SE from -0.7244, against the paper's own consistency
-theorem), the cell is checked against the truth instead and listed in PUBLISHED_OFF_TRUTH. Only
-the IVM is consistent under this coloured noise; the LSM's published bias is real and is compared
-as published.
+100 runs per noise level (about 2 s in all). Compared cell by cell with the published mean +- std
+(b2's sign corrected, rows sigma^2 = 1e-4, 5e-4, 1e-3 per NOTES.md): |ours - paper| <= 3 SE with SE
+= sqrt(s_ours^2 + s_paper^2) / sqrt(100), both means being averages of 100 runs. Where a published
+mean is itself more than 3 of its own SE from the true value (the paper's IVM b2 at sigma^2 = 1e-3:
+-0.7171 +- 0.0188, 3.9 SE from -0.7244, against the paper's own consistency theorem), the cell is
+checked against the truth instead and listed in PUBLISHED_OFF_TRUTH. Only the IVM is consistent
+under this coloured noise; the LSM's published bias is real and is compared as published.
 """
 
 from __future__ import annotations

@@ -31,8 +31,9 @@ def cross_relation_numerator(
 
     For channels ``i < j``:
     ``h_j(0) w_i(n) + h_j(1) w_i(n-1) - h_i(0) w_j(n) - h_i(1) w_j(n-1) = 0`` (noise-free),
-    linear in ``theta = [h_1(0), h_1(1), .., h_p(0), h_p(1)]``. ``theta`` is the eigenvector of the smallest eigenvalue of the cross-relation Gram matrix; then
-    ``b_l = h_l(0) - h_{l-1}(0)`` averaged with ``h_{l-1}(1) - h_l(1)``, normalised to b1 = 1.
+    linear in ``theta = [h_1(0), h_1(1), .., h_p(0), h_p(1)]``. ``theta`` is the eigenvector of the
+    smallest eigenvalue of the cross-relation Gram matrix; then ``b_l = h_l(0) - h_{l-1}(0)``
+    averaged with ``h_{l-1}(1) - h_l(1)``, normalised to b1 = 1.
     """
     w = dw_or_w
     sys = pp.simo_system(w, p, tau, t_min)

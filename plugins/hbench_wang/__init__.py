@@ -98,8 +98,8 @@ class WangIV(_Wang):
     IV's own table (``structure="iv"``); the IV then estimates A and B with that structure.
     ``zeta(k) = [r(k - lag0), ..., r(k - lag0 - m + 1)]`` with the paper's ``lag0 = 1``; the
     extended IV solution uses the Moore-Penrose pseudo-inverse when ``m > na``. Consistent under
-    coloured noise as long as r is independent of it (A1); larger variance than the LSM. The noise variance
-    reported is half the mean square of the quiet-phase residual.
+    coloured noise as long as r is independent of it (A1); larger variance than the LSM. The noise
+    variance reported is half the mean square of the quiet-phase residual.
     """
 
     name: ClassVar[str] = "wang-iv"
