@@ -527,13 +527,15 @@ def blind_fit(
     rule: SelectionRule = SelectionRule(),
     info: dict[str, Any] | None = None,
     selector: DenominatorFit | None = None,
+    refine: Callable[..., tuple[np.ndarray, np.ndarray]] | None = None,
 ) -> Estimate:
     """The blind route shared by the methods: structure, A, B, A4 check, U, alignment with x.
 
     Runs that select the same (na, tau, nb) are processed together, batched. ``pooled`` takes
     the denominator from all quiet phases ``nb + 1 .. p`` instead of phase ``p`` alone.
     ``selector`` is the denominator estimate used for the structure selection (default: the
-    method's own ``denominator``).
+    method's own ``denominator``). ``refine(reg, idx, tau, nb) -> (theta, sigma2)``, when given,
+    replaces ``denominator`` for the final estimate once the structure is known.
     """
     p, R, K = record.p, record.runs, record.n_slow
     why = check_identifiable(p, options)
@@ -553,7 +555,7 @@ def blind_fit(
         dy = pp.delta(y[idx])
         phases = tuple(range(nb + 1, p + 1)) if pooled else (p,)
         reg = pp.quiet_regression(dy, p, na, phases, tau)
-        theta, s2 = denominator(reg, idx)
+        theta, s2 = refine(reg, idx, tau, nb) if refine is not None else denominator(reg, idx)
         a[idx, :na] = theta
         sigma2[idx] = s2
         den = np.concatenate([np.ones((idx.size, 1)), theta], axis=1)

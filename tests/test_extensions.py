@@ -1,0 +1,55 @@
+"""Methods beyond the paper (issue 8): claims tested with fixed seeds and stated standard errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hbench_extensions import noise_bias
+
+from tests.helpers import TRUE_STRUCTURE, run_method, sim
+
+
+def test_noise_bias_reduces_to_the_papers_compensation():
+    """White ARX noise: gamma_0 = 2 sigma^2, gamma_1 = -sigma^2 -> c = [sigma^2, 0, ...] (eq. 14)."""
+    theta = np.array([[-1.962, 0.9623]])
+    sigma2 = 0.37
+    c = noise_bias(theta, np.array([[2 * sigma2, -sigma2, 0.0]]))
+    np.testing.assert_allclose(c, [[sigma2, 0.0]], rtol=1e-14)
+
+
+def test_noise_bias_uses_the_impulse_response_of_one_over_a():
+    """gamma_2 != 0: c_1 = -(h0 gamma_1 + h1 gamma_2) with h1 = -a1, c_2 = -gamma_2 (by hand)."""
+    theta = np.array([[-0.5, 0.1]])
+    c = noise_bias(theta, np.array([[1.0, 0.2, 0.3]]))
+    np.testing.assert_allclose(c, [[-(0.2 + 0.5 * 0.3), -0.3]], rtol=1e-14)
+
+
+@pytest.mark.parametrize("method", ["wang-lsm-cn"])
+def test_coloured_noise_lsm_beats_ivm_at_high_noise(method):
+    """Issue 8, claim 2, on the paper's example at sigma^2 = 1e-2 (its ZOH coloured noise):
+    |bias of a1| below the IVM's standard deviation, and a standard deviation below the IVM's.
+
+    100 runs, fixed seed. The bias check has margin: the method's bias must stay below the IVM's
+    std even after adding 3 SE of its own mean (SE = std / 10); the std comparison is made with
+    the std ratio at least 3 standard errors of a std ratio (about sqrt(2/100) ~ 14 % each) clear
+    of 1, i.e. ours <= 0.75 x the IVM's.
+    """
+    record, truth = sim(runs=100, seed=8, noise__sigma2=1e-2)
+    a1 = truth.plant.a[1]
+    ours = run_method(method, record, options=TRUE_STRUCTURE).params()["a1"]
+    ivm = run_method("wang-iv", record, options=TRUE_STRUCTURE).params()["a1"]
+    lsm = run_method("wang-lsm", record, options=TRUE_STRUCTURE).params()["a1"]
+    sd_ours, sd_iv = np.std(ours, ddof=1), np.std(ivm, ddof=1)
+    assert abs(ours.mean() - a1) + 3 * sd_ours / 10 < sd_iv
+    assert sd_ours <= 0.75 * sd_iv
+    # and the paper's LSM is biased here (the reason for the method)
+    assert abs(lsm.mean() - a1) > 3 * np.std(lsm, ddof=1) / 10
+
+
+def test_coloured_noise_lsm_consistent_under_white_arx_noise():
+    """Where the paper's assumptions hold it stays unbiased: means within 3 SE of the truth."""
+    record, truth = sim(runs=100, seed=9, noise__name="arx", noise__gain=0.01, noise__sigma2=1e-3)
+    est = run_method("wang-lsm-cn", record, options=TRUE_STRUCTURE)
+    for key, true in truth.plant.true_params().items():
+        v = est.params()[key]
+        assert abs(v.mean() - true) <= 3 * np.std(v, ddof=1) / 10, key
