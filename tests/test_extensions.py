@@ -10,7 +10,7 @@ from tests.helpers import TRUE_STRUCTURE, run_method, sim
 
 
 def test_noise_bias_reduces_to_the_papers_compensation():
-    """White ARX noise: gamma_0 = 2 sigma^2, gamma_1 = -sigma^2 -> c = [sigma^2, 0, ...] (eq. 14)."""
+    """White ARX noise: gamma_0 = 2 sigma^2, gamma_1 = -sigma^2 -> c = [sigma^2, 0] (eq. 14)."""
     theta = np.array([[-1.962, 0.9623]])
     sigma2 = 0.37
     c = noise_bias(theta, np.array([[2 * sigma2, -sigma2, 0.0]]))

@@ -116,7 +116,7 @@ class ColoredNoiseLSM(Identifier):
             return pp.bias_compensated(reg)
 
         def refined(reg: pp.QuietRegression, idx: np.ndarray, tau: int, nb: int):
-            theta, s2 = pp.bias_compensated(reg)
+            theta, _ = pp.bias_compensated(reg)
             Rm, f = reg.moments()
             Rinv = np.linalg.pinv(Rm, rcond=1e-12, hermitian=True)
             phases = tuple(range(nb + 1, p + 1))
