@@ -90,6 +90,9 @@ class Estimate:
         ``var_dw`` (runs, p) (Table 2), ...
     info : dict
         Method options and notes (e.g. which inverse was used).
+    delay_multiple : ndarray of int or None
+        The delay's multiple of p where the method estimates it (relaxing A3); None where it
+        takes the known value of :class:`IdentifyOptions`.
     """
 
     method: str
@@ -104,6 +107,7 @@ class Estimate:
     reason: list[str]
     criteria: dict[str, np.ndarray] = field(default_factory=dict)
     info: dict[str, Any] = field(default_factory=dict)
+    delay_multiple: np.ndarray | None = None
 
     @property
     def runs(self) -> int:

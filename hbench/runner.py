@@ -23,7 +23,17 @@ from hbench.records import Record, Truth
 from hbench.simulate import Scenario, simulate
 
 #: Quantities written per run and method (besides the parameters a1.., b2..).
-QUANTITIES = ("fitness", "fitness_ls", "na", "nb", "tau", "sigma2_hat", "identifiable", "seconds")
+QUANTITIES = (
+    "fitness",
+    "fitness_ls",
+    "na",
+    "nb",
+    "tau",
+    "delay",
+    "sigma2_hat",
+    "identifiable",
+    "seconds",
+)
 #: Identifying columns of a tidy row, in order.
 ID_COLUMNS = (
     "cell",
@@ -56,6 +66,7 @@ def _rows_for(
     seconds: float,
     ids: Mapping[str, Any],
     start: int,
+    known_multiple: int,
 ) -> list[dict[str, Any]]:
     R = record.runs
     plant = truth.plant
@@ -66,6 +77,11 @@ def _rows_for(
         "na": (est.na.astype(float), float(plant.na)),
         "nb": (est.nb.astype(float), float(plant.nb)),
         "tau": (est.tau.astype(float), float(plant.tau(record.p))),
+        "delay": (
+            est.tau
+            + record.p * (est.delay_multiple if est.delay_multiple is not None else known_multiple),
+            float(plant.delay),
+        ),
         "sigma2_hat": (est.sigma2, np.nan),
         "identifiable": (est.identifiable.astype(float), np.nan),
         "seconds": (np.full(R, seconds / R), np.nan),
@@ -191,7 +207,9 @@ def run_cell(
                 rows.extend(_failed_rows(name, truth, " ".join(msg.split()), ids, done))
                 continue
             seconds = time.perf_counter() - t0
-            rows.extend(_rows_for(name, est, truth, record, seconds, ids, done))
+            rows.extend(
+                _rows_for(name, est, truth, record, seconds, ids, done, options.delay_multiple)
+            )
             if keep_example and name not in example["estimates"]:
                 example["estimates"][name] = est.U[0].copy()
         done += n
