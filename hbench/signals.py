@@ -87,20 +87,33 @@ class RBS(Reference):
             "per_run": self.per_run,
         }
 
-    def draw(self, rng: np.random.Generator, K: int) -> np.ndarray:
+    def _raw_length(self, K: int) -> int:
+        lo, hi = self.band
+        return K + self.burn_in if self.filter == "butter" and (lo, hi) != (0.0, 1.0) else K
+
+    def _shape(self, g: np.ndarray, K: int) -> np.ndarray:
+        """Band-limit Gaussian draws (time last, any leading shape) and take their sign."""
         lo, hi = self.band
         if (lo, hi) == (0.0, 1.0):
-            g = rng.standard_normal(K)
+            pass
         elif self.filter == "butter":
-            g = signal.sosfilt(self._sos, rng.standard_normal(K + self.burn_in))[self.burn_in :]
+            g = signal.sosfilt(self._sos, g, axis=-1)[..., self.burn_in :]
         else:
-            g = rng.standard_normal(K)
-            spec = np.fft.rfft(g)
-            f = np.linspace(0.0, 1.0, spec.size)
-            spec[(f < lo) | (f > hi)] = 0.0
-            g = np.fft.irfft(spec, n=K)
-        out = np.where(g >= 0.0, self.amplitude, -self.amplitude)
-        return out
+            spec = np.fft.rfft(g, axis=-1)
+            f = np.linspace(0.0, 1.0, spec.shape[-1])
+            spec[..., (f < lo) | (f > hi)] = 0.0
+            g = np.fft.irfft(spec, n=K, axis=-1)
+        return np.where(g >= 0.0, self.amplitude, -self.amplitude)
+
+    def draw(self, rng: np.random.Generator, K: int) -> np.ndarray:
+        return self._shape(rng.standard_normal(self._raw_length(K)), K)
+
+    def generate(self, rngs: list[np.random.Generator], K: int) -> np.ndarray:
+        """Each run draws from its own generator; the filtering is one call over the batch."""
+        if not self.per_run or not rngs:
+            return super().generate(rngs, K)
+        n = self._raw_length(K)
+        return self._shape(np.stack([g.standard_normal(n) for g in rngs]), K)
 
 
 class PRBS(Reference):
