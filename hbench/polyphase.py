@@ -39,6 +39,12 @@ def delta(z: np.ndarray) -> np.ndarray:
     return out
 
 
+def first_valid(z: np.ndarray) -> int:
+    """Index of the first sample that is defined (not nan) in every run of ``z``."""
+    bad = np.isnan(z).any(axis=0)
+    return int(np.argmin(bad)) if not bad.all() else z.shape[-1]
+
+
 def gather(z: np.ndarray, t: np.ndarray) -> np.ndarray:
     """``z[:, t]`` for an integer index array ``t`` of any shape."""
     return z[:, t]

@@ -85,7 +85,7 @@ class BaiFu(Identifier):
             return theta, s2 / 2.0
 
         def numerator(dw, tau, nb, sigma2, idx):
-            return pp.b_ols(dw, record.p, tau, nb, t_min=int(np.argmin(np.isnan(dw[0]))))
+            return pp.b_ols(dw, record.p, tau, nb, t_min=pp.first_valid(dw))
 
         return blind_fit(
             self.name,

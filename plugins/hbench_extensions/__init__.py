@@ -138,7 +138,7 @@ class ColoredNoiseLSM(Identifier):
             return theta, gamma[:, 0] / 2.0
 
         def numerator(dw, tau, nb, sigma2, idx):
-            t_min = int(np.argmin(np.isnan(dw[0])))
+            t_min = pp.first_valid(dw)
             g = np.stack([gammas[int(i)] for i in idx])
             k = pp.phase_times(dw.shape[1], p, 1, tau, t_min)
             k = np.intersect1d(k, pp.phase_times(dw.shape[1], p, nb, tau, t_min))

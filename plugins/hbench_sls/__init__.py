@@ -91,7 +91,7 @@ class SunLiuSano(Identifier):
         def numerator(dw, tau, nb, sigma2, idx):
             # the cross relation acts on w: rebuild it from dw up to a constant c, which cancels
             # exactly, c (h_j(0) + h_j(1) - h_i(0) - h_i(1)) = c (B(1) - B(1)) = 0
-            t0 = int(np.argmin(np.isnan(dw[0])))
+            t0 = pp.first_valid(dw)
             w = np.full_like(dw, np.nan)
             w[:, t0 - 1 :] = np.concatenate(
                 [np.zeros((dw.shape[0], 1)), np.cumsum(dw[:, t0:], axis=1)], axis=1

@@ -75,7 +75,7 @@ class WangLSM(_Wang):
             return pp.bias_compensated(reg)
 
         def numerator(dw, tau, nb, sigma2, idx):
-            return pp.b_lsm(dw, record.p, tau, nb, sigma2, t_min=int(np.argmin(np.isnan(dw[0]))))
+            return pp.b_lsm(dw, record.p, tau, nb, sigma2, t_min=pp.first_valid(dw))
 
         return blind_fit(
             self.name,
@@ -130,7 +130,7 @@ class WangIV(_Wang):
             return theta, reg.residual_ms(theta) / 2.0
 
         def numerator(dw, tau, nb, sigma2, idx):
-            t_min = int(np.argmin(np.isnan(dw[0])))
+            t_min = pp.first_valid(dw)
             return pp.b_iv(dw, r[idx], record.p, tau, nb, self.m, t_min, self.lag0)
 
         selector = None
