@@ -18,7 +18,11 @@ from hbench.simulate import Scenario
 
 
 def pytest_collect_file(file_path: Path, parent: pytest.Collector) -> pytest.Module | None:
-    if file_path.suffix == ".py" and file_path.name.startswith("bench_"):
+    if (
+        file_path.suffix == ".py"
+        and file_path.name.startswith("bench_")
+        and not parent.session.isinitpath(file_path)  # pytest collects given paths itself
+    ):
         return pytest.Module.from_parent(parent, path=file_path)
     return None
 
