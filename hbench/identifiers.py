@@ -174,7 +174,9 @@ class SelectionRule:
     quiet shifts containing ``s`` (``s`` itself must be quiet). A block's support is the number of
     shifts in it whose own estimate yields the same block. Each order keeps its best-supported
     block (ties: the lowest level, the mean ``C`` over the block); among the orders whose block is
-    corroborated (support >= 2, when any order's is), ``na`` is the smallest whose level is
+    corroborated (support >= 2, when any order's is; an order whose level is below half the best
+    corroborated level is admitted too, for p = nb + 1 where the truth has one quiet phase), ``na``
+    is the smallest whose level is
     within ``1 + tol_na`` of the best (parsimony with a tolerance); tau is the last shift of its
     block. Rationale: the true A
     annihilates every quiet phase (eq. 10), so the estimates from all ``p - nb`` quiet shifts
@@ -313,6 +315,7 @@ def _select_common_a(
     rule: SelectionRule,
     floor: np.ndarray,
     allowed: np.ndarray,
+    min_quiet: int = 2,
 ) -> tuple[np.ndarray, np.ndarray]:
     R, _n_na, p, _ = C.shape
     fl = floor[:, None, None, None]
@@ -340,6 +343,11 @@ def _select_common_a(
     has = np.isfinite(take(key))
     need = np.minimum(2, np.where(has, sup_o, 0).max(axis=1, keepdims=True))
     eligible = has & (sup_o >= need)
+    # with one quiet phase (p = nb + 1) the true block cannot be corroborated: an order whose
+    # level is below half the best corroborated one is admitted (an under-fitted order inflates
+    # every shift alike, so it can look corroborated at a far higher level)
+    best_corr = np.where(eligible, lev_o, np.inf).min(axis=1, keepdims=True)
+    eligible |= has & (lev_o <= 0.5 * best_corr)
     best = np.where(eligible, lev_o, np.inf).min(axis=1, keepdims=True)
     ok = eligible & (lev_o <= (1 + rule.tol_na) * best + floor[:, None])
     ia = np.argmax(ok, axis=1)
