@@ -197,7 +197,7 @@ class SelectionRule:
     """
 
     method: str = "common-a"
-    tol_na: float = 0.05
+    tol_na: float = 0.10
     tol_tau: float = 0.25
     tol_nb: float = 0.5
     floor: float = 1e-12
@@ -392,8 +392,21 @@ def select_structure(
     (i) ``V^(p)(na, shift)`` of eq. (19) with ``theta`` from ``fit`` (bias-compensated LSM or IV)
     at phase ``l = p`` under each shift; ``na`` and ``tau`` by :class:`SelectionRule`.
     (ii)-(iii) ``A`` with ``nb = n0_b``, ``w = A(q) y``, ``Var{Delta w^(l)}``, ``nb``.
+    With ``na``, ``tau`` and ``nb`` all given nothing is selected and the tables are nan.
     """
     R = y.shape[0]
+    if options.na is not None and options.tau is not None and options.nb is not None:
+        if not 0 <= options.tau < p:
+            raise InputError(f"tau must lie within [0, p) = [0, {p}), got {options.tau}")
+        return Structure(
+            na=np.full(R, int(options.na)),
+            tau=np.full(R, int(options.tau)),
+            nb=np.full(R, int(options.nb)),
+            V=np.full((R, 1, p), np.nan),
+            C=np.full((R, 1, p, p), np.nan),
+            var_dw=np.full((R, p), np.nan),
+            na_values=np.array([options.na]),
+        )
     dy = pp.delta(y)
     scale = np.nanmean(dy**2, axis=1)
     na_lo, na_hi = options.na_range

@@ -423,7 +423,11 @@ def inner_signal_direct(
     for rr in range(R):  # lfilter takes one coefficient set; runs differ in (a, b)
         z = signal.lfilter(a[rr], b[rr], y[rr, shift:])
         t = (np.arange(n_first, n_first + M)) * p + 1
-        ok = t < z.size
+        # filtered from rest on a record that need not start at rest: drop the samples until
+        # the 1/B transient has decayed below 1e-3 (nan there)
+        rho = np.max(np.abs(np.roots(b[rr]))) if b.shape[1] > 1 else 0.0
+        skip = int(np.ceil(np.log(1e-3) / np.log(rho))) if 0.0 < rho < 1.0 else 0
+        ok = (t < z.size) & (t >= skip)
         out[rr, ok] = z[t[ok]]
     return out
 

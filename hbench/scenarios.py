@@ -35,7 +35,11 @@ PAPER_SECTION6: dict[str, Any] = {
         "method": "zoh",
         "sigma2": 1e-3,
     },
-    "reference": {"name": "rbs", "band": [0.0, 0.5], "amplitude": 1.0, "filter": "butter"},
+    # The paper says "band [0, 0.5]"; read as MATLAB idinput does (fraction of the slow Nyquist
+    # frequency) it gives an SNR column 1.4-1.7x below the paper's. Band [0, 0.3] was fitted to
+    # the SNR column and moves cells not used in the fit onto the paper's (F0, Table 1's na = 1
+    # row, parameter spreads): `hbench reproduce --investigate` measures it. Calibrated, stated.
+    "reference": {"name": "rbs", "band": [0.0, 0.3], "amplitude": 1.0, "filter": "butter"},
     "T": 0.6,
     "p": 5,
     "duration": 500.0,

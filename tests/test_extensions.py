@@ -24,26 +24,29 @@ def test_noise_bias_uses_the_impulse_response_of_one_over_a():
     np.testing.assert_allclose(c, [[-(0.2 + 0.5 * 0.3), -0.3]], rtol=1e-14)
 
 
-@pytest.mark.parametrize("method", ["wang-lsm-cn"])
-def test_coloured_noise_lsm_beats_ivm_at_high_noise(method):
-    """Issue 8, claim 2, on the paper's example at sigma^2 = 1e-2 (its ZOH coloured noise):
-    |bias of a1| below the IVM's standard deviation, and a standard deviation below the IVM's.
+def test_coloured_noise_lsm_against_the_ivm_at_high_noise():
+    """Issue 8, claim 2, on the paper's example at sigma^2 = 1e-2 (its ZOH coloured noise).
 
-    100 runs, fixed seed. The bias check has margin: the method's bias must stay below the IVM's
-    std even after adding 3 SE of its own mean (SE = std / 10); the std comparison is made with
-    the std ratio at least 3 standard errors of a std ratio (about sqrt(2/100) ~ 14 % each) clear
-    of 1, i.e. ours <= 0.75 x the IVM's.
+    Holds: |bias of a1| below the IVM's std (with 3 SE of our mean added), the paper's LSM
+    clearly biased, and our std below that of the IVM on phase p alone (the paper's eq. 20 at
+    l = p; std ratio <= 0.75, i.e. 3 SE of a ratio of stds from 100 runs clear of 1).
+    Does NOT hold (measured, seed 8): against hbench's default IVM, which re-estimates A from all
+    quiet phases (step iii), our std is ~1.3x the IVM's (0.042 vs 0.032); asserted here so that
+    a change is noticed.
     """
     record, truth = sim(runs=100, seed=8, noise__sigma2=1e-2)
     a1 = truth.plant.a[1]
-    ours = run_method(method, record, options=TRUE_STRUCTURE).params()["a1"]
-    ivm = run_method("wang-iv", record, options=TRUE_STRUCTURE).params()["a1"]
-    lsm = run_method("wang-lsm", record, options=TRUE_STRUCTURE).params()["a1"]
-    sd_ours, sd_iv = np.std(ours, ddof=1), np.std(ivm, ddof=1)
-    assert abs(ours.mean() - a1) + 3 * sd_ours / 10 < sd_iv
-    assert sd_ours <= 0.75 * sd_iv
-    # and the paper's LSM is biased here (the reason for the method)
+
+    def a1_of(method, **kw):
+        return run_method(method, record, options=TRUE_STRUCTURE, **kw).params()["a1"]
+
+    ours, lsm = a1_of("wang-lsm-cn"), a1_of("wang-lsm")
+    iv_phase_p, iv_pooled = a1_of("wang-iv", pooled=False), a1_of("wang-iv")
+    sd = np.std(ours, ddof=1)
+    assert abs(ours.mean() - a1) + 3 * sd / 10 < np.std(iv_pooled, ddof=1)
     assert abs(lsm.mean() - a1) > 3 * np.std(lsm, ddof=1) / 10
+    assert sd <= 0.75 * np.std(iv_phase_p, ddof=1)
+    assert sd > np.std(iv_pooled, ddof=1)  # the open part of claim 2
 
 
 def test_coloured_noise_lsm_consistent_under_white_arx_noise():

@@ -43,8 +43,11 @@ def test_noise_free_exact(noise_free, method):
         np.testing.assert_allclose(params[key], true, rtol=0, atol=1e-8, err_msg=key)
     F = fitness(est.U, truth.U, scaling="gain", gain=truth.plant.gain)
     assert np.all(F > 99.99), F
-    # the estimate covers the record but for the first period(s) that need past samples
-    assert np.isfinite(est.U).sum(axis=1).min() >= record.n_slow - 3
+    # the estimate covers the record but for the first periods that need past samples, and, for
+    # the direct inverse, those its 1/B transient spans (decay to 1e-3: |zero| 0.724 -> 22 fast
+    # samples, 5 periods)
+    edge = 3 + (5 if est.info["inverse"].get("direct") else 0)
+    assert np.isfinite(est.U).sum(axis=1).min() >= record.n_slow - edge
 
 
 def test_noise_free_sigma2_estimate_is_zero(noise_free):

@@ -1,0 +1,637 @@
+"""``hbench report RUN_DIR [--out DIR]``: the comparison report of a sweep or a reproduction.
+
+Input: a folder with tidy ``rows.parquet`` (a sweep's root, a reproduction), or with none at its
+root, every ``**/rows.parquet`` below it (a Hydra multirun has one per job; rows present twice are
+kept once). ``provenance.json`` files (root and below) feed the provenance block; ``examples.npz``
+files (written by ``hbench reproduce``; see :func:`hbench.reproduce.save_examples`) the x-U
+graphs; ``reproduce.csv`` (and ``investigation.csv``) the comparison with the paper.
+
+Output (default ``RUN_DIR/report/``, or a fresh ``RUN_DIR/report-<time>/`` if that exists): a
+self-contained ``report.html`` (figures embedded as base64 PNG data URIs, no external resources),
+the figures as PNG and PDF, and the tables as Markdown and LaTeX (booktabs): ``fitness``,
+``bias`` (the contract's aggregation), ``ranking`` (mean rank of fitness per cell among the blind
+methods; oracles are bounds, not ranked), ``timing`` (seconds per run). Methods whose class is a
+reconstruction (``reconstruction = True``) are labelled so wherever they appear.
+"""
+
+from __future__ import annotations
+
+import argparse
+import base64
+import html
+import json
+import math
+import os
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from hbench.errors import InputError
+
+#: Names not in the registry that reports may meet (defined by ``hbench reproduce``).
+EXTRA_LABELS = {"wang-lsm-inv": "wang-lsm-inv (LSM + direct inverse)"}
+FIGURE_IDS = ("fig-fitness-snr", "fig-bias-std-snr", "fig-xu", "fig-time", "fig-ranking")
+
+
+# --------------------------------------------------------------------------- inputs
+
+
+def find_rows(run_dir: Path) -> list[Path]:
+    """``RUN_DIR/rows.parquet`` if present, else every ``**/rows.parquet`` below (sorted)."""
+    root = run_dir / "rows.parquet"
+    if root.is_file():
+        return [root]
+    return sorted(p for p in run_dir.rglob("rows.parquet") if p.is_file())
+
+
+def load_rows(run_dir: Path) -> tuple[Any, list[Path]]:
+    """The tidy rows under ``run_dir`` (de-duplicated) and the files they came from."""
+    import pandas as pd
+
+    from hbench.runner import ID_COLUMNS
+
+    if not run_dir.is_dir():
+        raise InputError(f"{run_dir} is not a folder")
+    files = find_rows(run_dir)
+    if not files:
+        raise InputError(f"no rows.parquet in {run_dir} or below: nothing to report")
+    frames = []
+    for f in files:
+        try:
+            frames.append(pd.read_parquet(f))
+        except Exception as exc:
+            raise InputError(f"cannot read {f}: {type(exc).__name__}: {exc}") from None
+    rows = pd.concat(frames, ignore_index=True)
+    needed = {"method", "quantity", "value", "status", "snr"}
+    missing = sorted(needed - set(rows.columns))
+    if missing:
+        raise InputError(f"{files[0]} is not tidy hbench rows (missing {', '.join(missing)})")
+    if rows.empty:
+        raise InputError(f"the rows under {run_dir} are empty: nothing to report")
+    for col in ID_COLUMNS:
+        if col not in rows.columns:
+            rows[col] = math.nan if col in ("sigma2", "snr_target", "p", "delay") else ""
+    key = [c for c in (*ID_COLUMNS, "quantity") if c in rows.columns]
+    rows = rows.drop_duplicates(subset=key, keep="first").reset_index(drop=True)
+    return rows, files
+
+
+def load_provenance(run_dir: Path) -> list[tuple[Path, dict[str, Any]]]:
+    out = []
+    for f in sorted(run_dir.rglob("provenance.json")):
+        if "report" in f.relative_to(run_dir).parts[:-1]:
+            continue
+        try:
+            out.append((f, json.loads(f.read_text())))
+        except (OSError, ValueError):
+            continue
+    return out
+
+
+def load_examples(run_dir: Path) -> list[dict[str, Any]]:
+    """Examples saved by :func:`hbench.reproduce.save_examples` under ``run_dir``."""
+    import numpy as np
+
+    out = []
+    for f in sorted(run_dir.rglob("examples.npz")):
+        try:
+            data = np.load(f, allow_pickle=False)
+        except (OSError, ValueError):
+            continue
+        with data:
+            ids = sorted({k.split("__")[0] for k in data.files})
+            for i in ids:
+                try:
+                    meta = json.loads(str(data[f"{i}__meta"]))
+                    ex = {
+                        **meta,
+                        "x": data[f"{i}__x"],
+                        "U": data[f"{i}__U"],
+                        "gain": float(data[f"{i}__gain"]),
+                        "estimates": {},
+                    }
+                except KeyError:
+                    continue
+                prefix = f"{i}__est__"
+                for k in data.files:
+                    if k.startswith(prefix):
+                        ex["estimates"][k[len(prefix) :]] = data[k]
+                out.append(ex)
+    return out
+
+
+# --------------------------------------------------------------------------- labels
+
+
+def method_info(name: str) -> dict[str, Any]:
+    """``{"reconstruction": bool, "oracle": bool}`` from the registry (unknown names: False)."""
+    try:
+        from hbench.plugins import registry
+
+        cls = registry().get("identifiers", name)
+    except Exception:
+        return {"reconstruction": False, "oracle": False}
+    return {
+        "reconstruction": bool(getattr(cls, "reconstruction", False)),
+        "oracle": "truth" in getattr(cls, "needs", frozenset()),
+    }
+
+
+def method_label(name: str) -> str:
+    """The name shown in reports: reconstructions and oracles say so."""
+    info = method_info(name)
+    label = EXTRA_LABELS.get(name, name)
+    if info["reconstruction"]:
+        label += " (reconstruction)"
+    if info["oracle"]:
+        label += " (oracle bound)"
+    return label
+
+
+def _series_label(series: str) -> str:
+    """Label of a bias/std series: ``method[ = method2][ | facet]``."""
+    methods, _, facet = series.partition(" | ")
+    label = " = ".join(method_label(m) for m in methods.split(" = "))
+    return label + (f" | {facet}" if facet else "")
+
+
+# --------------------------------------------------------------------------- statistics
+
+
+def _num(v: Any) -> str:
+    try:
+        f = float(v)
+    except (TypeError, ValueError):
+        return str(v)
+    if math.isnan(f):
+        return "?"
+    return str(int(f)) if f.is_integer() else f"{f:g}"
+
+
+def _facet(df: Any) -> Any:
+    """``"backlash, p=5, delay=3"`` per row (the panels of the fitness figure)."""
+    if not len(df):
+        return df["method"].astype(str)
+    return (
+        df["nonlinearity"].astype(str)
+        + ", p="
+        + df["p"].map(_num)
+        + ", delay="
+        + df["delay"].map(_num)
+    )
+
+
+def _merge_identical(bias: Any) -> Any:
+    """Draw series with identical numbers once, labelled ``a = b`` (e.g. ``wang-lsm`` and
+    ``wang-lsm-inv``: the same estimates, two inner-signal steps)."""
+    import numpy as np
+
+    seen: dict[bytes, str] = {}
+    rename: dict[str, str] = {}
+    drop: list[str] = []
+    for series, g in bias.groupby("series", sort=False):
+        g = g.sort_values(["parameter", "snr"])
+        key = (
+            np.round(g[["bias", "std", "snr"]].to_numpy(float), 12).tobytes()
+            + "|".join(g["parameter"]).encode()
+        )
+        if key in seen:
+            first = seen[key]
+            rename[first] = rename.get(first, first) + " = " + str(series)
+            drop.append(str(series))
+        else:
+            seen[key] = str(series)
+    out = bias[~bias["series"].isin(drop)].copy()
+    out["series"] = out["series"].map(lambda s: rename.get(s, s))
+    return out
+
+
+def cell_stats(rows: Any) -> dict[str, Any]:
+    """Per-cell statistics the figures and tables need (the cell key includes ``snr_target``)."""
+    keys = ["method", "nonlinearity", "p", "delay", "sigma2", "snr_target"]
+    r = rows.copy()
+    for k in ("sigma2", "snr_target"):
+        r[k] = r[k].astype(float)
+    r["_s2"] = r["sigma2"].fillna(-1.0)
+    r["_st"] = r["snr_target"].fillna(-1.0)
+    gkeys = ["method", "nonlinearity", "p", "delay", "_s2", "_st"]
+    snr = (
+        r.drop_duplicates([*gkeys, "run"]).groupby(gkeys, dropna=False)["snr"].mean().rename("snr")
+    )
+    ok = r[r["status"] == "ok"]
+    fit = (
+        ok[ok["quantity"] == "fitness"]
+        .groupby(gkeys, dropna=False)["value"]
+        .agg(fitness_mean="mean", fitness_std="std", n="count")
+    )
+    fitness = fit.join(snr, how="left").reset_index()
+    fitness = fitness.merge(r[[*gkeys, *keys[4:]]].drop_duplicates(gkeys), on=gkeys, how="left")
+    fitness["facet"] = _facet(fitness)
+    par = ok[ok["quantity"].str.fullmatch(r"[ab]\d+")]
+    bias = (
+        par.groupby([*gkeys, "quantity"], dropna=False)
+        .agg(
+            true=("true", "first"),
+            mean=("value", "mean"),
+            std=("value", "std"),
+            n=("value", "count"),
+        )
+        .reset_index()
+        .rename(columns={"quantity": "parameter"})
+    )
+    bias["bias"] = bias["mean"] - bias["true"]
+    bias = bias.merge(snr.reset_index(), on=gkeys, how="left")
+    bias = bias[~bias["method"].map(lambda m: method_info(m)["oracle"])]  # true values: no error
+    bias["facet"] = _facet(bias)
+    multi = bias["facet"].nunique() > 1
+    bias["series"] = bias["method"] + (" | " + bias["facet"] if multi else "")
+    bias = _merge_identical(bias)
+    sec = ok[ok["quantity"] == "seconds"].groupby("method")["value"].agg(["mean", "std"])
+    timing = sec.reset_index()
+    # ranking among blind methods, per cell
+    blind = [m for m in fitness["method"].unique() if not method_info(m)["oracle"]]
+    f = fitness[fitness["method"].isin(blind) & fitness["fitness_mean"].notna()].copy()
+    cell_key = ["nonlinearity", "p", "delay", "_s2", "_st"]
+    f["rank"] = f.groupby(cell_key, dropna=False)["fitness_mean"].rank(
+        ascending=False, method="average"
+    )
+    f["win"] = f["rank"] == 1.0
+    ranking = (
+        f.groupby("method")
+        .agg(
+            mean_rank=("rank", "mean"),
+            cells=("rank", "count"),
+            wins=("win", "sum"),
+            mean_fitness=("fitness_mean", "mean"),
+        )
+        .reset_index()
+        .sort_values("mean_rank")
+    )
+    return {"fitness": fitness, "bias": bias, "timing": timing, "ranking": ranking}
+
+
+# --------------------------------------------------------------------------- HTML
+
+
+CSS = """
+body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:2em auto;
+max-width:1150px;color:#222;line-height:1.4;padding:0 1em}
+h1{font-size:1.6em}
+h2{font-size:1.25em;border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:2em}
+h3{font-size:1.05em}
+table{border-collapse:collapse;font-size:.82em;margin:.6em 0 1.2em}
+th,td{border-top:1px solid #ddd;padding:.25em .55em;text-align:right;white-space:nowrap}
+th{border-bottom:2px solid #888;border-top:2px solid #888;background:#f7f7f7}
+td:first-child,th:first-child{text-align:left}
+figure{margin:1em 0 2em}figure img{max-width:100%;border:1px solid #eee}
+figcaption{font-size:.85em;color:#444}
+pre{background:#f6f6f6;padding:.8em;overflow-x:auto;font-size:.78em;max-height:32em}
+.note{background:#fff8e0;border-left:4px solid #e0b000;padding:.4em .8em}
+.beyond{font-family:ui-monospace,Menlo,Consolas,monospace;font-size:.8em}
+"""
+
+
+def _esc(x: Any) -> str:
+    return html.escape(str(x), quote=True)
+
+
+def html_table(table: Any, floatfmt: str = ".4g", table_id: str | None = None) -> str:
+    cols = list(table.columns)
+
+    def fmt(v: Any) -> str:
+        if isinstance(v, float):
+            return "" if math.isnan(v) else format(v, floatfmt)
+        return str(v)
+
+    ident = f' id="{_esc(table_id)}"' if table_id else ""
+    head = "".join(f"<th>{_esc(c)}</th>" for c in cols)
+    body = "".join(
+        "<tr>" + "".join(f"<td>{_esc(fmt(row[c]))}</td>" for c in cols) + "</tr>"
+        for _, row in table.iterrows()
+    )
+    return f"<table{ident}><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+
+
+def html_figure(fig_id: str, png: bytes, caption: str) -> str:
+    data = base64.b64encode(png).decode("ascii")
+    return (
+        f'<figure id="{_esc(fig_id)}"><img src="data:image/png;base64,{data}" '
+        f'alt="{_esc(caption)}"><figcaption>{_esc(caption)}</figcaption></figure>'
+    )
+
+
+# --------------------------------------------------------------------------- the report
+
+
+def _pick_examples(examples: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """One example per nonlinearity (the middle one by sigma^2 when there are several)."""
+    by: dict[str, list[Mapping[str, Any]]] = {}
+    for ex in examples:
+        by.setdefault(str(ex.get("nonlinearity", "?")), []).append(ex)
+    panels = []
+    for nl, exs in by.items():
+        exs = sorted(exs, key=lambda e: float(e.get("sigma2") or 0.0))
+        ex = exs[len(exs) // 2]
+        s2 = ex.get("sigma2")
+        title = f"σ² = {float(s2):g}" if s2 is not None else str(ex.get("cell", ""))
+        panels.append(
+            {
+                "nonlinearity": nl,
+                "title": title,
+                "x": ex["x"],
+                "U": ex["U"],
+                "gain": float(ex["gain"]),
+                "estimates": dict(ex["estimates"]),
+            }
+        )
+    return panels
+
+
+def _provenance_html(prov: Sequence[tuple[Path, Mapping[str, Any]]], run_dir: Path) -> str:
+    if not prov:
+        return '<p class="note">No provenance.json found under the folder.</p>'
+    import pandas as pd
+
+    summary = pd.DataFrame(
+        [
+            {
+                "file": str(p.relative_to(run_dir)),
+                "git revision": d.get("git_revision", "?"),
+                "hbench": d.get("hbench_version", "?"),
+                "python": d.get("python", "?"),
+                "created": d.get("created", "?"),
+            }
+            for p, d in prov
+        ]
+    )
+    parts = [html_table(summary, table_id="provenance-files")]
+    versions = {json.dumps(d.get("versions", {}), sort_keys=True) for _, d in prov}
+    parts.append(f"<h3>Package versions</h3><pre>{_esc(chr(10).join(sorted(versions)))}</pre>")
+    shown = prov[:3]
+    for p, d in shown:
+        block = {k: d.get(k) for k in ("git_revision", "platform", "config", "seeds")}
+        parts.append(
+            f"<h3>{_esc(p.relative_to(run_dir))}</h3>"
+            f"<pre>{_esc(json.dumps(block, indent=2, default=str))}</pre>"
+        )
+    if len(prov) > len(shown):
+        parts.append(
+            f"<p>... and {len(prov) - len(shown)} more provenance files (same schema).</p>"
+        )
+    return "\n".join(parts)
+
+
+def _reproduction_html(run_dir: Path, out: Path) -> str:
+    """The paper comparison when ``reproduce.csv`` is present."""
+    import pandas as pd
+
+    from hbench import reproduce as rp
+
+    csv = run_dir / "reproduce.csv"
+    if not csv.is_file():
+        return ""
+    frame = pd.read_csv(csv)
+    summary = rp.summarise(frame)
+    parts = [
+        '<section id="reproduction"><h2>Reproduction of the paper (Section 6)</h2>',
+        f"<p><b>{_esc(summary.line())}</b></p>",
+        "<p>z = (ours − paper) / SE with SE² = s²<sub>ours</sub>/n + s²<sub>paper</sub>/"
+        "n<sub>paper</sub> + u²/12 (u: the rounding unit of the printed number; "
+        "s<sub>paper</sub> = s<sub>ours</sub> where the paper prints no spread; Tables 1-2 "
+        "are single realisations, n = n<sub>paper</sub> = 1). Table 5: F_LSM = wang-lsm, "
+        "F0_LSM = oracle, F_INV = the LSM estimates in the direct inverse, "
+        "F0_INV = oracle-inv.</p>",
+    ]
+    summ = run_dir / "summary.txt"
+    if summ.is_file():
+        lines = summ.read_text().splitlines()[1:]  # the first line is the summary above
+        parts.append(f'<pre class="beyond">{_esc(chr(10).join(lines))}</pre>')
+    titles = {
+        "table4": "Table 4: parameters (mean ± std; b2 sign corrected)",
+        "snr": "SNR column",
+        "table5": "Table 5: fitness (%)",
+        "table1": "Table 1: V(na, τ) ×1e-7 (one realisation, σ² = 1e-3)",
+        "table2": "Table 2: Var Δw(l) ×1e-7 (same realisation)",
+    }
+    shown = rp.display_tables(frame)
+    for name in ("table4", "snr", "table5", "table1", "table2"):
+        if name in shown:
+            parts.append(f"<h3>{_esc(titles[name])}</h3>" + html_table(shown[name], table_id=name))
+    for fig in ("figure4", "figure5"):
+        png = run_dir / f"{fig}.png"
+        if png.is_file():
+            caption = {
+                "figure4": "Figure 4: controller output x(n) vs estimated inner signal "
+                "U(n) (one realisation, σ² = 1e-3)",
+                "figure5": "Figure 5: x(n) vs the true inner signal U(n)",
+            }[fig]
+            parts.append(html_figure(fig, png.read_bytes(), caption))
+    inv = run_dir / "investigation.csv"
+    if inv.is_file():
+        t = pd.read_csv(inv)
+        cols = [
+            c
+            for c in (
+                "alternative",
+                "group",
+                "mean_abs_z_before",
+                "mean_abs_z_after",
+                "T4-params_after",
+                "T4-snr_after",
+                "T5_after",
+                "T1_after",
+                "T2_after",
+                "std_ratio_T4-params_after",
+                "std_ratio_T5_after",
+                "cells_closer",
+                "cells_further",
+                "moved_most",
+            )
+            if c in t.columns
+        ]
+        parts.append(
+            "<h3>Investigation: alternatives against the defaults</h3>"
+            "<p>mean |z| over Tables 4 (parameters, SNR) and 5, before (defaults) and "
+            "after each single change; per-table columns after the change.</p>"
+            + html_table(
+                t[cols].sort_values("mean_abs_z_after"), floatfmt=".3g", table_id="investigation"
+            )
+        )
+    parts.append("</section>")
+    return "\n".join(parts)
+
+
+def build_report(
+    run_dir: Path | str,
+    out: Path | str | None = None,
+    *,
+    rows: Any = None,
+    jobs: int = 1,
+    extra_figures: Sequence[Any] = (),
+) -> Path:
+    """Write the report of ``run_dir`` into ``out``; returns the path of ``report.html``.
+
+    ``rows`` (already in memory) skips reading ``rows.parquet``; ``jobs > 1`` renders the
+    figures in forked worker processes; ``extra_figures`` (:data:`hbench.figures.FigureSpec`)
+    are rendered in the same batch (the reproduction's Figures 4 and 5).
+    """
+    from hbench import figures
+    from hbench.results import aggregate, new_output_dir, to_latex, to_markdown
+
+    run_dir = Path(run_dir)
+    if rows is None:
+        rows, files = load_rows(run_dir)
+    else:
+        files = [run_dir / "rows.parquet"]
+    if out is None:
+        out = run_dir / "report"
+        if out.exists():
+            out = new_output_dir(run_dir, "report")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+
+    stats = cell_stats(rows)
+    fitness_table, bias_table = aggregate(rows)
+    ranking = stats["ranking"]
+    timing = stats["timing"].rename(columns={"mean": "seconds_mean", "std": "seconds_std"})
+    for frame in (fitness_table, bias_table, ranking, timing):
+        frame.insert(0, "label", frame["method"].map(method_label))
+    tables = {"fitness": fitness_table, "bias": bias_table, "ranking": ranking, "timing": timing}
+    for name, table in tables.items():
+        (out / f"{name}.md").write_text(to_markdown(table))
+        (out / f"{name}.tex").write_text(to_latex(table, caption=f"hbench {name}"))
+
+    # (figure id, spec, caption); rendered together below
+    planned: list[tuple[str, Any, str]] = [
+        (
+            "fig-fitness-snr",
+            (out / "fitness_snr", "fitness_vs_snr", (stats["fitness"], method_label), {}),
+            "Fitness (mean ± one std over runs) against the mean SNR of each cell, per method "
+            "(noise-free cells, with infinite SNR, are not drawn).",
+        )
+    ]
+    if len(stats["bias"]):
+        planned.append(
+            (
+                "fig-bias-std-snr",
+                (out / "bias_std_snr", "bias_std_vs_snr", (stats["bias"], _series_label), {}),
+                "Bias (mean − true) and standard deviation of each parameter against SNR "
+                "(b1 = 1 normalisation; parameters are dimensionless).",
+            )
+        )
+    examples = load_examples(run_dir)
+    if examples:
+        planned.append(
+            (
+                "fig-xu",
+                (out / "xu", "xu_grid", (_pick_examples(examples), method_label), {}),
+                "x(n) against U(n), one realisation per nonlinearity: the true U, then each "
+                "method's estimate scaled by the true gain b1 (the fitness scaling).",
+            )
+        )
+    if len(stats["timing"]):
+        planned.append(
+            (
+                "fig-time",
+                (out / "time", "time_per_method", (stats["timing"], method_label), {}),
+                "Identification time per run (mean ± std over runs; a batch's time is shared "
+                "equally among its runs).",
+            )
+        )
+    if len(ranking):
+        planned.append(
+            (
+                "fig-ranking",
+                (out / "ranking", "ranking", (ranking, method_label), {}),
+                "Mean rank of fitness per cell among the blind methods (1 = best; oracles are "
+                "bounds and are not ranked).",
+            )
+        )
+    pngs = figures.render_many([*extra_figures, *(p[1] for p in planned)], jobs)
+    figs = [
+        html_figure(fig_id, png, caption)
+        for (fig_id, _, caption), png in zip(planned, pngs[len(extra_figures) :], strict=True)
+    ]
+    if not examples:
+        figs.insert(
+            2 if len(figs) >= 2 else len(figs),
+            '<p class="note" id="no-examples">No examples.npz under this folder (sweeps do not '
+            "save signals): the x-U graphs per method are not drawn.</p>",
+        )
+
+    methods = list(dict.fromkeys(rows["method"]))
+    recon = [m for m in methods if method_info(m)["reconstruction"]]
+    n_cells = rows.drop_duplicates(["nonlinearity", "p", "delay", "sigma2", "snr_target"]).shape[0]
+    intro = [
+        f"<p>Source folder: <code>{_esc(run_dir)}</code> ({len(files)} rows file(s), "
+        f"{len(rows)} tidy rows, {n_cells} cells, methods: "
+        f"{_esc(', '.join(method_label(m) for m in methods))}).</p>"
+    ]
+    status = rows.drop_duplicates(["cell", "method", "run", "sigma2", "snr_target"])[
+        "status"
+    ].value_counts()
+    intro.append(
+        "<p>Run status: " + _esc(", ".join(f"{k} {v}" for k, v in status.items())) + ".</p>"
+    )
+    if recon:
+        intro.append(
+            '<p class="note">' + _esc(", ".join(recon)) + " is a reconstruction: "
+            "its original algorithm is not available and parts of it are this project's "
+            "own (see its docstring); read its numbers as those of a faithful variant."
+            "</p>"
+        )
+    prov = load_provenance(run_dir)
+    page = [
+        "<!DOCTYPE html>",
+        '<html lang="en"><head><meta charset="utf-8">',
+        "<title>hbench report</title>",
+        f"<style>{CSS}</style></head><body>",
+        "<h1>hbench report</h1>",
+        *intro,
+        _reproduction_html(run_dir, out),
+        '<section id="figures"><h2>Figures</h2>',
+        *figs,
+        "</section>",
+        '<section id="tables"><h2>Tables</h2>',
+        "<p>Also written as Markdown and LaTeX (booktabs) files beside this page: "
+        + _esc(", ".join(f"{n}.md, {n}.tex" for n in tables))
+        + ".</p>",
+        "<h3>Ranking (mean rank of fitness per cell)</h3>",
+        html_table(ranking, floatfmt=".3g", table_id="table-ranking"),
+        "<h3>Time per method</h3>",
+        html_table(timing, floatfmt=".3g", table_id="table-timing"),
+        "<h3>Fitness per cell (%)</h3>",
+        html_table(fitness_table, table_id="table-fitness"),
+        "<h3>Bias per parameter</h3>",
+        html_table(bias_table, table_id="table-bias"),
+        "</section>",
+        '<section id="provenance"><h2>Provenance</h2>',
+        _provenance_html(prov, run_dir),
+        "</section>",
+        "</body></html>",
+    ]
+    path = out / "report.html"
+    path.write_text("\n".join(page), encoding="utf-8")
+    return path
+
+
+def _cmd(args: argparse.Namespace) -> int:
+    jobs = max(1, min(2, len(os.sched_getaffinity(0))))
+    path = build_report(Path(args.run_dir), Path(args.out) if args.out else None, jobs=jobs)
+    print(path)
+    return 0
+
+
+def add_parser(subparsers: Any) -> argparse.ArgumentParser:
+    """Add ``hbench report`` to the CLI."""
+    p = subparsers.add_parser(
+        "report",
+        help="comparison report (HTML with figures, Markdown and LaTeX tables) from results",
+        description="Build a self-contained HTML report (figures embedded), Markdown and LaTeX "
+        "tables and PDF figures from the tidy rows under RUN_DIR (its rows.parquet, or every "
+        "**/rows.parquet below it).",
+    )
+    p.add_argument("run_dir", metavar="RUN_DIR", help="a sweep's or a reproduction's folder")
+    p.add_argument("--out", default=None, help="output folder (default RUN_DIR/report/)")
+    p.set_defaults(func=_cmd)
+    return p

@@ -1,0 +1,428 @@
+"""``hbench reproduce``: published tables, z-scores, summary, the output folder end to end."""
+
+from __future__ import annotations
+
+import json
+import math
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from hbench import cli
+from hbench import reproduce as rp
+from hbench.runner import TIDY_COLUMNS
+
+ROOT = Path(__file__).resolve().parents[1]
+CONTRACT_COLUMNS = [
+    "table",
+    "row",
+    "column",
+    "method",
+    "paper",
+    "paper_std",
+    "ours",
+    "ours_std",
+    "z",
+]
+FITNESS_COLUMNS = [
+    "method",
+    "nonlinearity",
+    "p",
+    "delay",
+    "sigma2",
+    "snr_mean",
+    "n",
+    "fitness_mean",
+    "fitness_std",
+]
+BIAS_COLUMNS = [
+    "method",
+    "nonlinearity",
+    "p",
+    "delay",
+    "sigma2",
+    "parameter",
+    "true",
+    "mean",
+    "bias",
+    "std",
+    "n",
+]
+# Tables 1 (2 methods x 5 na x 5 tau), 2 (5 phases), 4 (6 levels x (SNR + 2 methods x 3
+# parameters)), 5 (6 levels x 4 columns)
+N_CELLS = {1: 50, 2: 5, 4: 42, 5: 24}
+
+
+# --------------------------------------------------------------------------- published numbers
+
+
+def test_package_data_is_declared():
+    conf = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    assert "data/*" in conf["tool"]["setuptools"]["package-data"]["hbench"]
+    assert (ROOT / "hbench" / "data" / "paper_tables.json").is_file()
+
+
+def test_paper_cells_typed_with_the_notes_corrections():
+    cells = rp.paper_cells()
+    counts = {t: sum(c.table == t for c in cells) for t in N_CELLS}
+    assert counts == N_CELLS
+    t4 = {(c.row, c.column, c.method): c for c in cells if c.table == 4}
+    # b2's sign corrected (printed +0.7244), rows as plain sigma^2 (printed "x 10^-2")
+    assert t4[(0.0, "b2", "wang-lsm")].value == -0.7244
+    assert t4[(1e-3, "b2", "wang-iv")].value == -0.7171
+    assert {c.row for c in cells if c.table in (4, 5)} == set(rp.LEVELS)
+    assert t4[(1e-4, "a1", "wang-lsm")].std == 0.0018
+    assert t4[(1e-2, "snr", "scenario")].value == 1.8889
+    assert math.isinf(t4[(0.0, "snr", "scenario")].value)
+    # Tables 1 and 2 in units of 1e-7, printed precision kept
+    t1 = {(c.row, c.column, c.method): c for c in cells if c.table == 1}
+    assert t1[(2, "3", "wang-lsm")].value == pytest.approx(1.073e-7)
+    assert t1[(3, "4", "wang-lsm")].unit == pytest.approx(1e-2 * 1e-7)  # "152.37"
+    t5 = {(c.row, c.column, c.method): c for c in cells if c.table == 5}
+    assert t5[(1e-3, "F", "wang-lsm")].value == 85.052
+    assert t5[(1e-3, "F", "wang-lsm")].std == 5.249
+    assert math.isnan(t5[(1e-3, "F0", "oracle")].std)  # not published
+
+
+@pytest.mark.parametrize(
+    ("text", "value", "unit"),
+    [
+        ("0.9623", 0.9623, 1e-4),
+        ("-1.9620", -1.962, 1e-4),
+        ("100", 100.0, 1.0),
+        ("152.37", 152.37, 1e-2),
+        ("1e-3", 1e-3, 1e-3),
+        ("inf", math.inf, 0.0),
+    ],
+)
+def test_parse_printed(text, value, unit):
+    v, u = rp.parse_printed(text)
+    assert v == value
+    assert u == pytest.approx(unit)
+
+
+# --------------------------------------------------------------------------- z and summary
+
+
+def test_z_score_known_values():
+    # SE = sqrt(0.2^2/100 + 0.2^2/100) = 0.028284; (1.1 - 1.0) / SE = 3.5355
+    assert rp.z_score(1.1, 0.2, 100, 1.0, 0.2, 100) == pytest.approx(3.5355339, rel=1e-6)
+    # no published std: the paper's spread is taken to be ours
+    assert rp.z_score(1.1, 0.2, 100, 1.0, math.nan, 100) == pytest.approx(3.5355339, rel=1e-6)
+    # different spreads and counts: SE = sqrt(0.3^2/25 + 0.1^2/100) = 0.0608276
+    assert rp.z_score(0.9, 0.3, 25, 1.0, 0.1, 100) == pytest.approx(-0.1 / 0.0608276, rel=1e-6)
+    # single realisations (Tables 1, 2): SE = sqrt(2) s
+    assert rp.z_score(3.0, 1.0, 1, 1.0, math.nan, 1) == pytest.approx(2 / math.sqrt(2))
+    # rounding of the printed number: SE = u / sqrt(12) when nothing else varies
+    assert rp.z_score(1.0001, 0.0, 10, 1.0, 0.0, 1, unit=1e-4) == pytest.approx(
+        1e-4 / (1e-4 / math.sqrt(12))
+    )
+    assert math.isnan(rp.z_score(math.inf, 0.0, 10, math.inf, 0.0, 1))
+    assert math.isnan(rp.z_score(1.0, 0.0, 10, 1.0, 0.0, 1, unit=0.0))  # SE = 0: undefined
+    assert math.isnan(rp.z_score(1.0, math.nan, 1, 2.0, math.nan, 1, unit=0.0))
+    # one run of ours (no spread): the published spread stands for both
+    assert rp.z_score(1.1, math.nan, 1, 1.0, 0.1, 100) == pytest.approx(0.1 / math.sqrt(0.0101))
+
+
+def _frame(zs):
+    return pd.DataFrame(
+        [
+            {
+                "table": 4,
+                "row": 1e-3,
+                "column": f"q{i}",
+                "method": "m",
+                "paper": 1.0,
+                "paper_std": 0.1,
+                "ours": 1.0 + z / 10,
+                "ours_std": 0.1,
+                "z": z,
+            }
+            for i, z in enumerate(zs)
+        ],
+        columns=CONTRACT_COLUMNS,
+    )
+
+
+def test_summary_share_and_beyond_cells():
+    s = rp.summarise(_frame([0.5, -1.9, 2.0, 2.1, -3.0, math.nan]))
+    assert (s.scored, s.within, s.unscored) == (5, 3, 1)
+    assert s.share == pytest.approx(0.6)
+    assert [c["z"] for c in s.beyond] == [-3.0, 2.1]  # largest |z| first, exactly the cells
+    assert s.line().startswith("3 of 5 scored cells (60 %) within |z| <= 2; 2 beyond")
+    text = s.text()
+    assert "q4 @ sigma2=0.001" in text and "z = -3.0" in text and "z = +2.1" in text
+    assert "q2" not in text  # |z| = 2 is within
+
+
+def test_summary_with_nothing_beyond():
+    s = rp.summarise(_frame([0.1, -0.2]))
+    assert s.beyond == [] and s.within == 2
+    assert "beyond |z|" not in s.text()
+
+
+def _tidy(level, method, quantity, values, snr):
+    return pd.DataFrame(
+        {
+            "cell": "c",
+            "method": method,
+            "sigma2": level,
+            "run": np.arange(len(values)),
+            "quantity": quantity,
+            "value": values,
+            "snr": snr,
+            "status": "ok",
+        }
+    )
+
+
+def test_compare_tables45_on_hand_made_rows():
+    a1 = np.array([-1.96, -1.97, -1.95, -1.962])
+    fit = np.array([80.0, 90.0, 85.0, 85.0])
+    snr = np.array([5.0, 5.2, 4.8, 5.0])
+    rows = pd.concat(
+        [
+            _tidy(1e-3, "wang-lsm", "a1", a1, snr),
+            _tidy(1e-3, "wang-lsm", "fitness", fit, snr),
+            _tidy(1e-3, "bai-fu", "fitness", fit - 20.0, snr),
+            _tidy(1e-3, "wang-lsm-inv", "fitness", fit - 5.0, snr),
+        ],
+        ignore_index=True,
+    )
+    out = rp.compare_tables45(rows).set_index(["table", "row", "column", "method"])
+    cell = out.loc[(4, 1e-3, "a1", "wang-lsm")]
+    assert cell["ours"] == pytest.approx(a1.mean())
+    assert cell["ours_std"] == pytest.approx(a1.std(ddof=1))
+    se = math.sqrt(a1.std(ddof=1) ** 2 / 4 + 0.0054**2 / 100 + 1e-8 / 12)
+    assert cell["z"] == pytest.approx((a1.mean() + 1.9651) / se)
+    s = out.loc[(4, 1e-3, "snr", "scenario")]
+    assert s["ours"] == pytest.approx(5.0) and s["paper"] == 5.1003
+    assert out.loc[(5, 1e-3, "F", "wang-lsm-inv"), "ours"] == pytest.approx(80.0)
+    # cells without rows are empty, not invented
+    assert math.isnan(out.loc[(4, 1e-4, "a1", "wang-lsm"), "ours"])
+    # F_INV mapped to bai-fu and the power SNR by configuration
+    alt = rp.compare_tables45(rows, rp.Config(f_inv="bai-fu", snr="power"))
+    alt = alt.set_index(["table", "row", "column", "method"])
+    assert alt.loc[(5, 1e-3, "F", "bai-fu"), "ours"] == pytest.approx(65.0)
+    assert alt.loc[(4, 1e-3, "snr", "scenario"), "ours"] == pytest.approx(np.mean(snr**2))
+
+
+def test_investigation_row_counts_moved_cells():
+    before = _frame([10.0, 0.5, -4.0, math.nan])
+    after = _frame([1.0, 0.5, -6.0, math.nan])
+    row = rp.investigation_row(rp.Config(label="alt"), before, after)
+    assert row["alternative"] == "alt"
+    assert (row["cells"], row["cells_closer"], row["cells_further"]) == (3, 1, 1)
+    assert row["mean_abs_z_before"] == pytest.approx((10 + 0.5 + 4) / 3)
+    assert row["mean_abs_z_after"] == pytest.approx((1 + 0.5 + 6) / 3)
+    assert row["moved_most"].startswith("T4 m q0@0.001: +10.0->+1.0")
+
+
+def test_investigation_row_matches_cells_by_slot():
+    """Table 1 holds two methods per (row, column); F_INV's method changes with the mapping."""
+
+    def frame(z_iv, f_inv_method, z_inv):
+        recs = [
+            {"table": 1, "row": 2, "column": "0", "method": "wang-lsm", "z": 1.0},
+            {"table": 1, "row": 2, "column": "0", "method": "wang-iv", "z": z_iv},
+            {"table": 5, "row": 1e-3, "column": "F", "method": "wang-lsm", "z": 0.5},
+            {"table": 5, "row": 1e-3, "column": "F", "method": f_inv_method, "z": z_inv},
+        ]
+        return pd.DataFrame(recs).assign(paper=1.0, paper_std=0.1, ours=1.0, ours_std=0.1)
+
+    row = rp.investigation_row(
+        rp.Config(label="f"), frame(-8.0, "wang-lsm-inv", -3.0), frame(-8.0, "bai-fu", -9.0)
+    )
+    assert (row["cells"], row["cells_closer"], row["cells_further"]) == (4, 0, 1)
+    assert row["moved_most"] == "T5 bai-fu F@0.001: -3.0->-9.0"
+    assert row["T5_before"] == pytest.approx(1.75) and row["T5_after"] == pytest.approx(4.75)
+    assert row["T1_after"] == pytest.approx(4.5)
+
+
+def test_spread_ratio_is_a_geometric_mean():
+    f = pd.DataFrame({"ours_std": [2.0, 0.5, math.nan, 3.0], "paper_std": [1.0, 1.0, 1.0, 0.0]})
+    assert rp.spread_ratio(f) == pytest.approx(1.0)
+    f = pd.DataFrame({"ours_std": [2.0, 8.0], "paper_std": [1.0, 1.0]})
+    assert rp.spread_ratio(f) == pytest.approx(4.0)
+    assert math.isnan(rp.spread_ratio(f.iloc[:0]))
+
+
+def test_best_alternative_per_group():
+    t = pd.DataFrame(
+        {
+            "alternative": ["a", "b", "c", "d"],
+            "group": ["g", "g", "h", "k"],
+            "mean_abs_z_before": [5.0, 5.0, 5.0, 5.0],
+            "mean_abs_z_after": [4.0, 2.0, 6.0, 4.9],
+            "T1_before": 1.0,
+            "T1_after": [1.0, 3.0, 1.0, 1.0],
+            "T2_before": 2.0,
+            "T2_after": 2.0,
+            "std_ratio_T4-params_after": [1.0, 1.1, 2.0, 1.0],
+            "std_ratio_T5_after": [1.0, 1.2, 3.0, 1.0],
+        }
+    )
+    lines = rp._best_per_group(t)
+    assert lines[0] == (
+        "- g: b 5.00 -> 2.00 (closer; T1 1.00 -> 3.00, T2 2.00 -> 2.00; spreads 1.10, 1.20)"
+    )
+    assert lines[1].startswith("- h: c 5.00 -> 6.00 (further;")
+    assert lines[2].startswith("- k: d 5.00 -> 4.90 (no change;")
+
+
+def test_alternatives_are_distinct_single_changes():
+    alts = rp.alternatives()
+    labels = [a.label for a in alts]
+    assert len(labels) == len(set(labels))
+    assert rp.POST_PROCESSED <= set(labels)
+    for a in alts:  # each builds a valid scenario
+        rp.scenario_spec(a, 1e-3)
+
+
+# --------------------------------------------------------------------------- end to end
+
+
+@pytest.fixture(scope="module")
+def reproduced(tmp_path_factory):
+    base = tmp_path_factory.mktemp("reproduce")
+    import contextlib
+    import io
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        status = cli.main(["reproduce", "--runs", "5", "--out", str(base)])
+    folders = list(base.glob("reproduce-*"))
+    return status, folders, out.getvalue(), err.getvalue()
+
+
+def test_reproduce_writes_a_new_folder(reproduced):
+    status, folders, out, err = reproduced
+    assert status == 0
+    assert len(folders) == 1
+    assert f"results: {folders[0]}" in out
+    assert "sigma^2 = 0.001: 5 runs" in err and "reproduce [" in err  # progress on stderr
+    assert "report: " in out
+
+
+def test_reproduce_csv_is_the_contract(reproduced):
+    d = reproduced[1][0]
+    frame = pd.read_csv(d / "reproduce.csv")
+    assert list(frame.columns) == CONTRACT_COLUMNS
+    counts = frame["table"].value_counts().to_dict()
+    assert counts == N_CELLS
+    t45 = frame[frame["table"].isin([4, 5])]
+    assert set(t45["row"].astype(float)) == set(rp.LEVELS)
+    assert set(frame.loc[frame["table"] == 4, "column"]) == {"a1", "a2", "b2", "snr"}
+    assert set(frame.loc[frame["table"] == 5, "column"]) == {"F", "F0"}
+    assert set(frame.loc[frame["table"] == 1, "column"].astype(str)) == {"0", "1", "2", "3", "4"}
+    assert set(frame.loc[frame["table"] == 1, "row"]) == {1, 2, 3, 4, 5}
+    assert set(frame.loc[frame["table"] == 2, "row"]) == {1, 2, 3, 4, 5}
+    assert set(frame.loc[frame["table"] == 5, "method"]) == {
+        "wang-lsm",
+        "oracle",
+        "wang-lsm-inv",
+        "oracle-inv",
+    }
+    # z is finite wherever it is defined: everywhere but the SNR at sigma^2 = 0 (inf vs inf)
+    undefined = frame[~np.isfinite(frame["z"])]
+    assert len(undefined) == 1
+    assert undefined.iloc[0]["column"] == "snr" and undefined.iloc[0]["row"] == 0
+    assert np.isfinite(frame["ours"].drop(undefined.index)).all()
+    # the noise-free level is exact: the published true values within rounding
+    exact = frame[(frame["table"] == 4) & (frame["row"] == 0) & (frame["column"] != "snr")]
+    assert (exact["z"].abs() < 2).all()
+
+
+def test_summary_line_printed_and_saved(reproduced):
+    d = reproduced[1][0]
+    frame = pd.read_csv(d / "reproduce.csv")
+    s = rp.summarise(frame)
+    saved = (d / "summary.txt").read_text()
+    assert saved.splitlines()[0] == s.line()
+    assert s.line() in reproduced[2]
+    z = frame["z"].to_numpy(float)
+    beyond = int(np.sum(np.abs(z[np.isfinite(z)]) > 2))
+    assert len(s.beyond) == beyond
+    assert saved.count(", z = ") == beyond  # every cell beyond is listed
+    assert "wang-lsm na=" in saved
+
+
+def test_tables_figures_and_provenance(reproduced):
+    d = reproduced[1][0]
+    for name in ("table1", "table2", "table4", "snr", "table5"):
+        md = (d / f"{name}.md").read_text()
+        assert md.count("\n|") >= 5, name
+        tex = (d / f"{name}.tex").read_text()
+        assert r"\toprule" in tex and r"\midrule" in tex and r"\bottomrule" in tex
+    t4 = (d / "table4.md").read_text()
+    assert "±" in t4 and "-1.9651 ± 0.0054" in t4  # the paper's cell beside ours
+    for stem in ("figure4", "figure5"):
+        png = (d / f"{stem}.png").read_bytes()
+        assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 5000
+        pdf = (d / f"{stem}.pdf").read_bytes()
+        assert pdf[:5] == b"%PDF-" and len(pdf) > 2000
+    rows = pd.read_parquet(d / "rows.parquet")
+    assert list(rows.columns) == list(TIDY_COLUMNS)
+    assert set(rows["method"]) == set(rp.ALL_METHODS)
+    assert set(rows["sigma2"]) == set(rp.LEVELS)
+    assert list(pd.read_csv(d / "fitness.csv").columns) == FITNESS_COLUMNS
+    assert list(pd.read_csv(d / "bias.csv").columns) == BIAS_COLUMNS
+    for name in ("fitness", "bias"):
+        assert r"\toprule" in (d / f"{name}.tex").read_text()
+        assert (d / f"{name}.md").read_text().startswith("| method")
+    prov = json.loads((d / "provenance.json").read_text())
+    assert prov["config"]["runs"] == 5
+    assert prov["config"]["table5_columns"]["F_INV"] == "wang-lsm-inv"
+    assert prov["seeds"]["base"] == rp.DEFAULT_SEED
+    assert {"git_revision", "versions", "created"} <= set(prov)
+    with np.load(d / "examples.npz") as ex:
+        assert ex["c0__x"].shape == ex["c0__U"].shape == ex["c0__est__wang-lsm"].shape
+    tab = json.loads((d / "tables12.json").read_text())
+    # the realisation selects the paper's structure (na = 2, tau = 3, nb = 2)
+    assert {k: tab["selection"]["wang-lsm"][k] for k in ("na", "tau", "nb")} == {
+        "na": 2,
+        "tau": 3,
+        "nb": 2,
+    }
+    assert (d / "report" / "report.html").is_file()
+
+
+def test_reproduce_bad_input(run_cli, tmp_path):
+    status, _, err = run_cli(["reproduce", "--runs", "0", "--out", str(tmp_path)])
+    assert status == 2
+    assert err.count("\n") == 1 and "--runs" in err and "Traceback" not in err
+    assert not list(tmp_path.iterdir())  # nothing written
+    status, _, err = run_cli(
+        ["reproduce", "--runs", "2", "--out", str(tmp_path), "--set", "noise.sigma2=1"]
+    )
+    assert status == 2 and err.count("\n") == 1
+    status, _, err = run_cli(
+        ["reproduce", "--runs", "2", "--out", str(tmp_path), "--set", "reference.band=[0,2]"]
+    )
+    assert status == 2 and err.count("\n") == 1
+
+
+@pytest.mark.slow
+def test_reproduce_defaults_match_most_published_cells(tmp_path):
+    """100 runs per level (the paper's): Tables 4 and 5 parameter cells mostly within 3 SE."""
+    d = rp.reproduce(out=tmp_path, report=False)
+    frame = pd.read_csv(d / "reproduce.csv")
+    params = frame[(frame["table"] == 4) & (frame["column"] != "snr") & (frame["row"] > 0)]
+    assert (params["z"].abs() <= 3).mean() >= 0.75
+    # the noise-free level is exact and the consistent IVM stays within 3 SE of the truth
+    iv = params[params["method"] == "wang-iv"]
+    assert (
+        iv["ours"] - iv["column"].map({"a1": -1.962, "a2": 0.9623, "b2": -0.7244})
+    ).abs().max() < 0.01
+
+
+@pytest.mark.slow
+def test_investigate_writes_one_row_per_alternative(tmp_path):
+    d = rp.reproduce(runs=3, out=tmp_path, investigate_=True, report=False)
+    inv = pd.read_csv(d / "investigation.csv")
+    assert list(inv["alternative"]) == [a.label for a in rp.alternatives()]
+    assert {"mean_abs_z_before", "mean_abs_z_after", "T5_after", "cells_closer"} <= set(inv)
+    assert (d / "investigation.md").read_text().startswith("# Investigation")
