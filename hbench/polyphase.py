@@ -45,11 +45,6 @@ def first_valid(z: np.ndarray) -> int:
     return int(np.argmin(bad)) if not bad.all() else z.shape[-1]
 
 
-def gather(z: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """``z[:, t]`` for an integer index array ``t`` of any shape."""
-    return z[:, t]
-
-
 # --- denominator: quiet-phase regressions (eqs. 13-15, 19, 20) ---------------------------------
 
 
@@ -203,14 +198,6 @@ def filtered_output(y: np.ndarray, a: np.ndarray) -> np.ndarray:
     w = np.einsum("ri,rit->rt", a, np.stack([np.roll(y, i, axis=1) for i in range(na + 1)], 1))
     w[:, :na] = np.nan
     return w
-
-
-def active_phase(
-    dw: np.ndarray, p: int, l: int, shift: int, t_min: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """``(Delta w(k p + l + shift), k)`` for every valid period ``k``."""
-    k = phase_times(dw.shape[1], p, l, shift, t_min)
-    return dw[:, k * p + l + shift], k
 
 
 def _common_periods(dw: np.ndarray, p: int, shift: int, t_min: int, nb: int) -> np.ndarray:
