@@ -51,3 +51,11 @@ def register_readers(register: Register) -> None:
 
     for reader in readers.READERS:
         register(reader.name, reader)
+
+
+@hookimpl
+def register_effects(register: Register) -> None:
+    from hbench.diagnose import effects
+
+    for cls in effects.BUILTIN:
+        register(cls.name, cls)

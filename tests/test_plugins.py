@@ -225,18 +225,7 @@ def test_disable_plugins_env_blocks_entry_points(
 # --------------------------------------------------------------------------- every hook is used
 
 
-@pytest.mark.parametrize(
-    "hook",
-    [
-        pytest.param(
-            h,
-            marks=pytest.mark.xfail(strict=False, reason="effects arrive with hbench diagnose"),
-        )
-        if h == "register_effects"
-        else h
-        for h in HOOKS
-    ],
-)
+@pytest.mark.parametrize("hook", HOOKS)
 def test_every_hookspec_has_an_implementation(hook: str) -> None:
     kind = {v: k for k, v in KINDS.items()}[hook]  # every hookspec is a registry kind
     assert getattr(get_manager().hook, hook).get_hookimpls()

@@ -1,0 +1,250 @@
+"""Calibration and scoring of the detectors on synthetic records (``python -m
+hbench.diagnose.calibrate``).
+
+``--effect none --start 5000 --n 200`` prints every detector's statistic on nominal records
+(its largest values set the thresholds in :mod:`hbench.diagnose.effects`); any other effect
+prints the detection rate and the cause found. Records come from
+:mod:`hbench.diagnose.generator`; the seeds used to calibrate (5000-5199 nominal, 6000-6199 with
+effects) are kept apart from the seeds the tests score.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import sys
+from collections.abc import Iterable, Sequence
+from typing import Any
+
+import numpy as np
+
+from hbench.diagnose import generator as gen
+
+
+def run_case(case: gen.Case) -> dict[str, Any]:
+    """Diagnose the record of ``case`` in memory; a row of plain data."""
+    from hbench.diagnose.validate import diagnose
+
+    rec = gen.simulate_case(case)
+    row: dict[str, Any] = {
+        "seed": case.seed,
+        "effect": case.effect,
+        "cls": case.cls,
+        "plant": case.plant["name"],
+        "p": case.p,
+    }
+    try:
+        d = diagnose(rec, source=case.name)
+    except Exception as exc:
+        row.update(cause="error", found_cls="error", error=f"{type(exc).__name__}: {exc}")
+        return row
+    row.update(
+        cause=d.cause,
+        found_cls=d.nonlinearity["class"],
+        baseline=d.baseline_fit,
+        extended=d.extended_fit,
+        gain=d.gain,
+        seconds=d.seconds,
+        stats={x.name: x.statistic for x in d.detections},
+        fired=[x.name for x in d.detections if x.fired],
+        ext={k: v.val_fit - d.baseline_fit for k, v in d.extensions.items()},
+    )
+    return row
+
+
+def run(cases: Sequence[gen.Case], jobs: int = 1) -> list[dict[str, Any]]:
+    """Rows for ``cases`` (in order), on ``jobs`` processes."""
+    if jobs <= 1:
+        return [run_case(c) for c in cases]
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(jobs) as pool:
+        return list(pool.map(run_case, cases, chunksize=1))
+
+
+def confusion(
+    rows: Iterable[dict[str, Any]], true_key: str, found_key: str, labels: Sequence[str]
+) -> str:
+    """A text confusion matrix (rows: truth, columns: found)."""
+    rows = list(rows)
+    found_labels = list(labels) + sorted({r[found_key] for r in rows} - set(labels))
+    counts = collections.Counter((r[true_key], r[found_key]) for r in rows)
+    w = max(len(s) for s in [*labels, *found_labels, "true \\ found"]) + 1
+    lines = ["true \\ found".ljust(w) + "".join(f[:12].rjust(13) for f in found_labels)]
+    for t in labels:
+        if not any(r[true_key] == t for r in rows):
+            continue
+        lines.append(t.ljust(w) + "".join(str(counts[(t, f)]).rjust(13) for f in found_labels))
+    ok = sum(counts[(t, t)] for t in labels)
+    lines.append(f"correct: {ok} / {len(rows)}")
+    return "\n".join(lines)
+
+
+def cause_label(effect: str) -> str:
+    return "none" if effect == "none" else effect
+
+
+def report(rows: list[dict[str, Any]]) -> str:
+    """Both confusion matrices and the gains."""
+    for r in rows:
+        r["true_cause"] = cause_label(r["effect"])
+    out = [
+        "cause (true vs found):",
+        confusion(rows, "true_cause", "cause", ["none", *gen.EFFECTS[1:]]),
+        "",
+        "nonlinearity class (true vs found):",
+        confusion(rows, "cls", "found_cls", list(gen.CLASSES)),
+    ]
+    hidden = [r for r in rows if r["effect"] != "none" and "gain" in r]
+    if hidden:
+        pos = sum(r["gain"] > 0 for r in hidden)
+        out.append(f"\ngain > 0 on {pos} / {len(hidden)} records with a hidden effect")
+    secs = [r["seconds"] for r in rows if r.get("seconds")]
+    if secs:
+        out.append(f"seconds per record: median {np.median(secs):.2f}, max {np.max(secs):.2f}")
+    return "\n".join(out)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(
+        prog="python -m hbench.diagnose.calibrate", description=__doc__.split("\n\n")[0]
+    )
+    ap.add_argument("--effect", default="all", help="an effect, 'none', or 'all' (balanced)")
+    ap.add_argument("--start", type=int, default=6000)
+    ap.add_argument("--n", type=int, default=35)
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--verbose", action="store_true")
+    args = ap.parse_args(argv)
+    if args.effect == "all":
+        cases = gen.balanced_cases(args.n, args.start)
+    else:
+        cases = [
+            gen.draw_case(args.start + i, args.effect, gen.CLASSES[i % len(gen.CLASSES)])
+            for i in range(args.n)
+        ]
+    rows = run(cases, args.jobs)
+    for r in rows:
+        if args.verbose or r["cause"] != cause_label(r["effect"]) or r["found_cls"] != r["cls"]:
+            stats = " ".join(
+                f"{k}={v:.3g}{'*' if k in r.get('fired', []) else ''}"
+                for k, v in r.get("stats", {}).items()
+            )
+            ext = " ".join(f"{k}={v:+.1f}" for k, v in r.get("ext", {}).items())
+            print(
+                f"{r['seed']:5d} {r['effect']:13s} {r['cls']:10s} {r['plant']:12s} -> "
+                f"{r['cause']:13s} {r['found_cls']:10s} base {r.get('baseline', 0):6.1f} "
+                f"gain {r.get('gain', 0):6.1f} | {stats} | ext {ext} {r.get('error', '')}"
+            )
+    names = sorted({k for r in rows for k in r.get("stats", {})})
+    print("\nstatistic quantiles (50 / 90 / 99 / max):")
+    for n in names:
+        v = np.array([r["stats"][n] for r in rows if "stats" in r])
+        print(f"  {n:14s} " + " ".join(f"{q:10.4g}" for q in np.percentile(v, [50, 90, 99, 100])))
+    print()
+    print(report(rows))
+    return 0
+
+
+# --------------------------------------------------------------------------- real plant data
+
+
+def stictiongpt_index(folder: Any) -> list[dict[str, str]]:
+    """Rows of ``INDEX.csv`` of the StictionGPT records (``file, label, split, loop_tag, ..``)."""
+    import csv
+    from pathlib import Path
+
+    with (Path(folder) / "INDEX.csv").open(newline="", encoding="utf-8") as fh:
+        return list(csv.DictReader(fh))
+
+
+def run_plant_log(path: Any) -> dict[str, Any]:
+    """``hbench diagnose`` on one plant log through the command line; the JSON (or the exit
+    status and message for a refused record)."""
+    import contextlib
+    import io
+    import json
+    import tempfile
+    from pathlib import Path
+
+    from hbench import cli
+
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "d.json"
+        err = io.StringIO()
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
+            status = cli.main(["diagnose", str(path), "--json", str(out)])
+        if status != 0:
+            return {"status": status, "message": err.getvalue().strip().splitlines()[-1]}
+        return {"status": 0, **json.loads(out.read_text())}
+
+
+def score_stictiongpt(
+    folder: Any, splits: Sequence[str] = ("development", "evaluation"), jobs: int = 1
+) -> list[dict[str, Any]]:
+    """The stiction verdict (class ``stiction`` or not) on every record of ``splits``."""
+    from pathlib import Path
+
+    rows = [r for r in stictiongpt_index(folder) if r["split"] in splits]
+    paths = [Path(folder) / r["file"] for r in rows]
+    if jobs > 1:
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(jobs) as pool:
+            results = list(pool.map(run_plant_log, paths, chunksize=1))
+    else:
+        results = [run_plant_log(p) for p in paths]
+    out = []
+    for r, res in zip(rows, results, strict=True):
+        cls = res.get("nonlinearity", {}).get("class") if res["status"] == 0 else None
+        verdict = "stiction" if cls == "stiction" else "no-stiction"
+        out.append(
+            {
+                **r,
+                "status": res["status"],
+                "class": cls,
+                "verdict": verdict,
+                "correct": verdict == r["label"],
+                "message": res.get("message", ""),
+                "scores": res.get("nonlinearity", {}).get("scores", {}),
+                "cause": res.get("cause"),
+            }
+        )
+    return out
+
+
+def accuracy(rows: Sequence[dict[str, Any]], split: str, refused: str = "wrong") -> tuple[int, int]:
+    """``(correct, total)`` on ``split``; a refused record (exit 2) counts as wrong, or is left
+    out with ``refused="skip"``."""
+    sel = [r for r in rows if r["split"] == split and (refused == "wrong" or r["status"] == 0)]
+    return sum(r["correct"] for r in sel), len(sel)
+
+
+def main_real(argv: Sequence[str] | None = None) -> int:
+    """``python -m hbench.diagnose.calibrate real FOLDER [--split S] [--jobs J]``."""
+    ap = argparse.ArgumentParser(prog="python -m hbench.diagnose.calibrate real")
+    ap.add_argument("folder")
+    ap.add_argument("--split", action="append", default=None)
+    ap.add_argument("--jobs", type=int, default=2)
+    args = ap.parse_args(argv)
+    splits = tuple(args.split or ("development", "evaluation"))
+    rows = score_stictiongpt(args.folder, splits, args.jobs)
+    for r in rows:
+        sc = " ".join(f"{k[:4]}={v:.1f}" for k, v in r["scores"].items())
+        print(
+            f"{r['split'][:4]} {'ok ' if r['correct'] else 'BAD'} {r['label']:12s} "
+            f"{r['class']!s:10s} {r['loop_tag'][:24]:24s} {sc} {r['message']}"
+        )
+    for split in splits:
+        c, n = accuracy(rows, split)
+        c2, n2 = accuracy(rows, split, "skip")
+        print(
+            f"{split}: {c}/{n} = {100 * c / max(n, 1):.1f} % (refused records counted wrong); "
+            f"{c2}/{n2} = {100 * c2 / max(n2, 1):.1f} % without them"
+        )
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    if len(sys.argv) > 1 and sys.argv[1] == "real":
+        sys.exit(main_real(sys.argv[2:]))
+    sys.exit(main())

@@ -1,0 +1,442 @@
+"""Fitting the actuator classes: on the ``(x, U)`` graph (``p >= 2``) or through the dynamics
+(``p = 1``).
+
+Every class is fitted as ``u = c f(x; theta) + d``: the inner signal of a blind method carries an
+unknown gain and offset (the normalisation ``b1 = 1``), and through the dynamics the linear part
+takes them. ``theta`` is searched on a grid scaled to the robust range of ``x`` (1st to 99th
+percentile), then on a finer grid around the best point. The memory classes also grid the state
+the valve started in (the record does not say where it was): ``g0`` (where in its band) and, for
+stiction, ``d0`` (the direction it last moved).
+
+Scores (the contract's ``nonlinearity.scores``): the evidence for each class over ``linear``,
+larger is better and ``linear`` is 0. On the graph it is half the BIC difference
+``(BIC_linear - BIC_class) / 2`` (a log Bayes factor); through the dynamics it is the gain in
+simulation fit, in points of %, on the samples fitted.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy import signal
+
+from hbench.diagnose import core
+from hbench.diagnose.core import CLASSES, N_SHAPE, nl_batch
+
+#: Parameters of the contract's JSON per class (the initial-state keys stay internal).
+PUBLIC: dict[str, tuple[str, ...]] = {
+    "linear": (),
+    "backlash": ("width",),
+    "deadband": ("lower", "upper"),
+    "saturation": ("u_min", "u_max"),
+    "stiction": ("S", "J"),
+}
+
+
+def public_params(cls: str, theta: dict[str, float], gain: float | None = None) -> dict[str, Any]:
+    """The class parameters for reports and JSON (finite floats or None for a one-sided limit)."""
+    out: dict[str, Any] = {}
+    for k in PUBLIC[cls]:
+        v = float(theta[k])
+        out[k] = v if np.isfinite(v) else None
+    if gain is not None:
+        out["gain"] = float(gain)
+    return out
+
+
+@dataclass
+class ClassFit:
+    """The best member of one class."""
+
+    cls: str
+    theta: dict[str, float]
+    rss: float
+    n: int
+    k: int
+    score: float = 0.0
+    info: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def bic(self) -> float:
+        return float(self.n * np.log(max(self.rss, 1e-300) / self.n) + self.k * np.log(self.n))
+
+
+# --------------------------------------------------------------------------- candidate grids
+
+
+def _mesh(**axes: np.ndarray) -> dict[str, np.ndarray]:
+    grids = np.meshgrid(*axes.values(), indexing="ij")
+    return {k: g.ravel() for k, g in zip(axes, grids, strict=True)}
+
+
+def coarse_grid(cls: str, x: np.ndarray) -> dict[str, np.ndarray]:
+    """A coarse grid of candidates for ``cls`` scaled to ``x``."""
+    s = core.scale_of(x)
+    if cls == "linear":
+        return {}
+    if cls == "backlash":
+        return _mesh(width=s * np.geomspace(0.003, 1.2, 24), g0=np.linspace(0, 1, 5))
+    if cls == "stiction":
+        g = _mesh(
+            S=s * np.geomspace(0.003, 1.2, 16),
+            jr=np.linspace(0, 1, 6),
+            d0=np.array([1.0, -1.0]),
+            g0=np.linspace(0, 1, 5),
+        )
+        return {"S": g["S"], "J": g["S"] * g["jr"], "d0": g["d0"], "g0": g["g0"]}
+    q = np.quantile(x, np.linspace(0.0, 1.0, 21))
+    if cls == "deadband":
+        lo, hi = np.meshgrid(q[1:-1], q[1:-1], indexing="ij")
+        m = lo <= hi
+        return {"lower": lo[m], "upper": hi[m]}
+    if cls == "saturation":
+        lows = np.concatenate([[-np.inf], q[1:11]])
+        highs = np.concatenate([q[10:-1], [np.inf]])
+        lo, hi = np.meshgrid(lows, highs, indexing="ij")
+        m = lo < hi
+        return {"u_min": lo[m], "u_max": hi[m]}
+    raise ValueError(cls)
+
+
+def fine_grid(cls: str, x: np.ndarray, theta: dict[str, float]) -> dict[str, np.ndarray]:
+    """A finer grid around ``theta``."""
+    s = core.scale_of(x)
+    if cls == "backlash":
+        return _mesh(
+            width=theta["width"] * np.geomspace(0.8, 1.25, 9),
+            g0=np.clip(theta["g0"] + np.linspace(-0.125, 0.125, 5), 0, 1),
+        )
+    if cls == "stiction":
+        S0, J0 = theta["S"], theta["J"]
+        jr0 = J0 / S0 if S0 > 0 else 0.0
+        g = _mesh(
+            S=S0 * np.geomspace(0.8, 1.25, 7),
+            jr=np.clip(jr0 + np.linspace(-0.1, 0.1, 5), 0, 1),
+            d0=np.array([theta["d0"]]),
+            g0=np.clip(theta["g0"] + np.linspace(-0.125, 0.125, 5), 0, 1),
+        )
+        return {"S": g["S"], "J": g["S"] * g["jr"], "d0": g["d0"], "g0": g["g0"]}
+    step = 0.05 * s
+    if cls == "deadband":
+        g = _mesh(
+            lower=theta["lower"] + step * np.linspace(-1, 1, 7),
+            upper=theta["upper"] + step * np.linspace(-1, 1, 7),
+        )
+        m = g["lower"] <= g["upper"]
+        return {k: v[m] for k, v in g.items()}
+    if cls == "saturation":
+        lo0, hi0 = theta["u_min"], theta["u_max"]
+        lows = np.array([lo0]) if not np.isfinite(lo0) else lo0 + step * np.linspace(-1, 1, 7)
+        highs = np.array([hi0]) if not np.isfinite(hi0) else hi0 + step * np.linspace(-1, 1, 7)
+        g = _mesh(u_min=lows, u_max=highs)
+        m = g["u_min"] < g["u_max"]
+        return {k: v[m] for k, v in g.items()}
+    return {}
+
+
+def _take(params: dict[str, np.ndarray], c: int) -> dict[str, float]:
+    return {k: float(v[c]) for k, v in params.items()}
+
+
+# --------------------------------------------------------------------------- on the (x, U) graph
+
+
+def _graph_rss(F: np.ndarray, U: np.ndarray) -> np.ndarray:
+    """RSS of ``U ~ c F[i] + d`` for every row of ``F`` (least squares, vectorised)."""
+    Fm = F - F.mean(axis=1, keepdims=True)
+    Um = U - U.mean()
+    sff = np.einsum("cn,cn->c", Fm, Fm)
+    sfu = Fm @ Um
+    suu = float(Um @ Um)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rss = suu - np.where(sff > 1e-300, sfu**2 / np.where(sff > 1e-300, sff, 1.0), 0.0)
+    return np.maximum(rss, 0.0)
+
+
+def _graph_best(
+    cls: str, x: np.ndarray, U: np.ndarray, ok: np.ndarray, params: dict[str, np.ndarray]
+) -> tuple[dict[str, float], float]:
+    F = nl_batch(cls, x, params)[:, ok]
+    rss = _graph_rss(F, U[ok])
+    c = int(np.argmin(rss))
+    return _take(params, c), float(rss[c])
+
+
+def fit_graph(
+    x: np.ndarray, U: np.ndarray, classes: tuple[str, ...] = CLASSES, shift: int = 0
+) -> dict[str, ClassFit]:
+    """Every class fitted to the graph ``(x(n - shift), U(n))``; NaN in ``U`` are skipped.
+
+    Returns class -> :class:`ClassFit` with ``score = (BIC_linear - BIC) / 2``.
+    """
+    x = np.asarray(x, float)
+    U = np.asarray(U, float)
+    if shift:
+        x = np.concatenate([np.full(shift, x[0]), x[:-shift]])
+    ok = np.isfinite(U)
+    n = int(ok.sum())
+    fits: dict[str, ClassFit] = {}
+    for cls in classes:
+        if cls == "linear":
+            theta: dict[str, float] = {}
+            rss = float(_graph_rss(x[None, ok], U[ok])[0])
+        else:
+            theta, rss = _graph_best(cls, x, U, ok, coarse_grid(cls, x))
+            if cls == "stiction" and "backlash" in fits:  # J = 0 is backlash: seed with it
+                th = fits["backlash"].theta
+                seed = {"S": th["width"], "J": 0.0, "d0": 1.0, "g0": th["g0"]}
+                rs = float(
+                    _graph_rss(
+                        nl_batch(cls, x, {k: np.array([v]) for k, v in seed.items()})[:, ok], U[ok]
+                    )[0]
+                )
+                if rs < rss:
+                    theta, rss = seed, rs
+            for _ in range(2):
+                theta2, rss2 = _graph_best(cls, x, U, ok, fine_grid(cls, x, theta))
+                if rss2 < rss:
+                    theta, rss = theta2, rss2
+        fits[cls] = ClassFit(
+            cls, theta, rss, n, 2 + N_SHAPE[cls], info={"strength": strength(cls, theta, x[ok])}
+        )
+    base = fits["linear"].bic if "linear" in fits else min(f.bic for f in fits.values())
+    for f in fits.values():
+        f.score = float((base - f.bic) / 2)
+    return fits
+
+
+def strength(cls: str, theta: dict[str, float], x: np.ndarray) -> float:
+    """How far ``f(x; theta)`` is from a straight line in ``x`` over the data: the share of its
+    variance a linear fit leaves (0 for linear; a tiny backlash or a dead zone where ``x``
+    never goes is not a nonlinearity the record can show)."""
+    if cls == "linear":
+        return 0.0
+    f = core.nl_one(cls, x, theta)
+    if np.ptp(f) == 0:
+        return 1.0
+    r = np.corrcoef(f, x)[0, 1]
+    return float(1.0 - r**2) if np.isfinite(r) else 1.0
+
+
+def gain_offset(
+    cls: str, theta: dict[str, float], x: np.ndarray, U: np.ndarray
+) -> tuple[float, float]:
+    """``(c, d)`` of ``U ~ c f(x; theta) + d`` by least squares (NaN in ``U`` skipped)."""
+    f = core.nl_one(cls, x, theta)
+    ok = np.isfinite(U)
+    A = np.stack([f[ok], np.ones(int(ok.sum()))], axis=1)
+    c, d = np.linalg.lstsq(A, U[ok], rcond=None)[0]
+    return float(c), float(d)
+
+
+# --------------------------------------------------------------------------- through the dynamics
+
+
+#: Denominators tried in the batch stage besides the linear model's own: first-order lags and
+#: double poles, enough to rank candidates before the output-error refit.
+def _a_candidates(a_lin: np.ndarray) -> list[np.ndarray]:
+    out = [np.asarray(a_lin, float)]
+    for r in (0.0, 0.6, 0.85, 0.95):
+        out.append(np.array([1.0, -r]))
+    for r in (0.7, 0.9):
+        out.append(np.poly([r, r]))
+    return out
+
+
+@dataclass
+class LinearStructure:
+    """The linear part's structure chosen for ``linear``: orders and delay (fast samples)."""
+
+    na: int
+    nb: int
+    delay: int
+    fit: core.OEFit
+
+
+def select_linear(
+    u: np.ndarray, y: np.ndarray, idx: np.ndarray, *, na_values=(1, 2, 3), delays=range(0, 9)
+) -> LinearStructure:
+    """Output-error orders ``na = nb`` and delay by BIC on ``idx``."""
+    best: tuple[float, LinearStructure] | None = None
+    n = idx.size
+    for na in na_values:
+        for d in delays:
+            f = core.oe_fit(u, y, na, na, d, idx)
+            bic = n * np.log(max(f.rss, 1e-300) / n) + (2 * na + 1) * np.log(n)
+            if best is None or bic < best[0]:
+                best = (bic, LinearStructure(na, na, d, f))
+    assert best is not None
+    ls = best[1]
+    f = core.oe_fit(u, y, ls.na, ls.nb, ls.delay, idx, refine=True)
+    if f.rss < ls.fit.rss:
+        ls.fit = f
+    return ls
+
+
+def _delays_near(d: int, spread: int = 1) -> list[int]:
+    return sorted({max(d + k, 0) for k in range(-spread, spread + 1)})
+
+
+def _batch_stage(
+    cls: str,
+    x: np.ndarray,
+    y: np.ndarray,
+    p: int,
+    idx: np.ndarray,
+    params: dict[str, np.ndarray],
+    a_set: list[np.ndarray],
+    delays: list[int],
+    weights: np.ndarray | None,
+    prefilter: np.ndarray | None = None,
+) -> np.ndarray:
+    """Smallest RSS over ``a_set`` and ``delays`` per candidate (separable least squares)."""
+    F = nl_batch(cls, x, params)
+    if p > 1:
+        F = np.repeat(F, p, axis=1)
+    best = np.full(F.shape[0], np.inf)
+    for a in a_set:
+        rss, _, _ = core.batch_fixed_a(F, y, a, delays, 2, idx, weights, prefilter)
+        best = np.minimum(best, rss.min(axis=1))
+    return best
+
+
+def fit_dynamic(
+    cls: str,
+    x: np.ndarray,
+    y: np.ndarray,
+    p: int,
+    idx: np.ndarray,
+    lin: LinearStructure,
+    *,
+    weights: np.ndarray | None = None,
+    top: int = 3,
+    prefilter: np.ndarray | None = None,
+    delays: list[int] | None = None,
+    a_set: list[np.ndarray] | None = None,
+    theta0: dict[str, float] | None = None,
+) -> tuple[ClassFit, core.OEFit]:
+    """The best member of ``cls`` through the dynamics: ``y ~ G(q) f(x; theta) + m``.
+
+    The linear part is re-fitted for every candidate: separable least squares with a few
+    denominators fixed (the batch stage ranks the grid), then an output-error refit of the
+    ``top`` candidates with ``lin``'s orders and the delay re-searched by +-1 (default).
+    ``prefilter`` (FIR ``D``): prediction error with the noise model ``1 / D`` instead of
+    output error; the returned fit's ``yhat`` and ``rss`` are then on the filtered data.
+    ``theta0`` (a parameter set of ``cls`` found otherwise) is refined as one more seed.
+    """
+    x = np.asarray(x, float)
+    y = np.asarray(y, float)
+    yf = y if prefilter is None else signal.lfilter(prefilter, [1.0], y)
+    if cls == "linear" and prefilter is None:
+        return ClassFit("linear", {}, lin.fit.rss, lin.fit.n, 2 * lin.na + 1), lin.fit
+    a_set = _a_candidates(lin.fit.lin.a) if a_set is None else a_set
+    delays = _delays_near(lin.delay, 1 if p == 1 else p) if delays is None else delays
+    if cls == "linear":
+        u = np.repeat(x, p) if p > 1 else x
+        uf = signal.lfilter(prefilter, [1.0], u - u[0])
+        best_f = None
+        for d in delays:
+            for kw in ({"refine": True}, {"a_fixed": lin.fit.lin.a}):
+                f = core.oe_fit(uf, yf, lin.na, lin.nb, d, idx, weights=weights, **kw)
+                if best_f is None or f.rss < best_f.rss:
+                    best_f = f
+        assert best_f is not None
+        return ClassFit("linear", {}, best_f.rss, best_f.n, 2 * lin.na + 1), best_f
+    params = coarse_grid(cls, x)
+    score = _batch_stage(cls, x, y, p, idx, params, a_set, delays, weights, prefilter)
+    order = np.argsort(score)
+    seeds: list[dict[str, float]] = [dict(theta0)] if theta0 else []
+    for c in order:
+        th = _take(params, int(c))
+        if all(any(abs(th[k] - s[k]) > 1e-12 * (1 + abs(s[k])) for k in th) for s in seeds):
+            seeds.append(th)
+        if len(seeds) >= top + bool(theta0):
+            break
+    # refine each seed on a finer grid (batch stage), then output-error refit
+    found: list[tuple[float, dict[str, float], core.OEFit, bool]] = []
+    for th in seeds:
+        fp = fine_grid(cls, x, th)
+        sc = _batch_stage(cls, x, y, p, idx, fp, a_set, delays, weights, prefilter)
+        th2 = _take(fp, int(np.argmin(sc)))
+        is_seed = bool(theta0) and th is seeds[0]
+        for th3 in (th2, th) if is_seed else (th2,):
+            u = core.nl_one(cls, x, th3)
+            uf = np.repeat(u, p) if p > 1 else u
+            if prefilter is not None:
+                uf = signal.lfilter(prefilter, [1.0], uf - uf[0])
+            best_here: core.OEFit | None = None
+            for d in delays:
+                for a_fixed in (None, lin.fit.lin.a):
+                    f = core.oe_fit(
+                        uf, yf, lin.na, lin.nb, d, idx, weights=weights, a_fixed=a_fixed
+                    )
+                    if best_here is None or f.rss < best_here.rss:
+                        best_here = f
+            assert best_here is not None
+            found.append((best_here.rss, th3, best_here, is_seed and th3 is th))
+    # the exact output-error refit of the two best candidates and of the given seed
+    found.sort(key=lambda c: c[0])
+    finalists = found[:2] + [c for c in found[2:] if c[3]]
+    best: tuple[float, dict[str, float], core.OEFit] | None = None
+    for rss0, th3, f0, _ in finalists:
+        u = core.nl_one(cls, x, th3)
+        uf = np.repeat(u, p) if p > 1 else u
+        if prefilter is not None:
+            uf = signal.lfilter(prefilter, [1.0], uf - uf[0])
+        g = core.oe_fit(
+            uf, yf, lin.na, lin.nb, f0.lin.delay, idx, weights=weights, a_init=f0.lin.a, refine=True
+        )
+        cand = (g.rss, th3, g) if g.rss < rss0 else (rss0, th3, f0)
+        if best is None or cand[0] < best[0]:
+            best = cand
+    assert best is not None
+    rss, theta, f = best
+    return ClassFit(cls, theta, rss, f.n, 2 * lin.na + 1 + N_SHAPE[cls]), f
+
+
+# --------------------------------------------------------------------------- equation error
+
+
+def fit_equation_error(
+    cls: str,
+    x: np.ndarray,
+    y: np.ndarray,
+    p: int,
+    idx: np.ndarray,
+    na: int,
+    nb: int,
+    delay: int,
+    theta0: dict[str, float] | None = None,
+) -> tuple[dict[str, float], float, np.ndarray]:
+    """The class's parameters and an ARX linear part by equation error on ``idx``.
+
+    ``y(t) + a1 y(t-1) + .. = b1 f(x)(t - delay - 1) + .. + m + e(t)``: the nominal noise
+    model's own criterion (the paper's eq. 2). A coarse grid (or the fine grid around
+    ``theta0``), then a finer grid around the best. Returns ``(theta, rss, [a, b, m])``.
+    """
+
+    def best_of(params: dict[str, np.ndarray]) -> tuple[dict[str, float], float, np.ndarray]:
+        F = nl_batch(cls, x, params)
+        if p > 1:
+            F = np.repeat(F, p, axis=1)
+        rss, th = core.batch_arx(F, y, na, nb, delay, idx)
+        c = int(np.argmin(rss))
+        return _take(params, c), float(rss[c]), th[c]
+
+    if cls == "linear":
+        F = (np.repeat(x, p) if p > 1 else np.asarray(x, float))[None, :]
+        rss, th = core.batch_arx(F, y, na, nb, delay, idx)
+        return {}, float(rss[0]), th[0]
+    start = fine_grid(cls, x, theta0) if theta0 is not None else coarse_grid(cls, x)
+    theta, rss, th = best_of(start)
+    if theta0 is not None:
+        t0, r0, h0 = best_of({k: np.array([v]) for k, v in theta0.items()})
+        if r0 < rss:
+            theta, rss, th = t0, r0, h0
+    for _ in range(2):
+        t2, r2, h2 = best_of(fine_grid(cls, x, theta))
+        if r2 < rss:
+            theta, rss, th = t2, r2, h2
+    return theta, rss, th

@@ -1,0 +1,77 @@
+"""The ``diagnose`` command's body (imported only when the command runs)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from hbench.errors import InputError
+
+
+def _summary(d) -> str:
+    nl = d.nonlinearity
+    params = ", ".join(
+        f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}" for k, v in nl["params"].items()
+    )
+    fired = [x.name for x in d.detections if x.fired]
+    lines = [
+        f"record: {d.source} (p = {d.ctx.p}, h = {d.ctx.h:g} s, {d.ctx.K} slow samples; fit on "
+        f"the first {d.ctx.k_fit}, validate on the last {d.ctx.K - d.ctx.k_fit})",
+        f"nonlinearity: {nl['class']}" + (f" ({params})" if params else ""),
+        "effects detected: " + (", ".join(fired) if fired else "none"),
+        f"cause: {d.cause}",
+        f"validation fit: nominal {d.baseline_fit:.1f} %, extended {d.extended_fit:.1f} %, "
+        f"gain {d.gain:+.1f} points",
+    ]
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    from hbench.diagnose.validate import diagnose
+    from hbench.plugins import registry
+    from hbench.readers import read_record
+
+    if args.p is not None and args.p < 1:
+        raise InputError(f"--p must be a positive integer, got {args.p}")
+    if args.delay_multiple < 0:
+        raise InputError(f"--delay-multiple must be >= 0, got {args.delay_multiple}")
+    if not 0.2 <= args.fit_fraction <= 0.9:
+        raise InputError(f"--fit-fraction must lie in [0.2, 0.9], got {args.fit_fraction:g}")
+    reg = registry()
+    readers = [reg.get("readers", n) for n in reg.names("readers")] or None
+    record = read_record(args.record, p=args.p, readers=readers)
+    if args.method not in reg.names("identifiers"):
+        known = ", ".join(reg.names("identifiers"))
+        raise InputError(f"unknown method {args.method!r} (known: {known})")
+    for notice in record.meta.get("notices", []):
+        print(f"notice: {notice}", file=sys.stderr)
+    with np.errstate(all="ignore"):
+        d = diagnose(
+            record,
+            source=str(args.record),
+            method=args.method,
+            fit_fraction=args.fit_fraction,
+            delay_multiple=args.delay_multiple,
+        )
+    out = d.as_json()
+    print(_summary(d))
+    if args.json:
+        text = json.dumps(out, indent=2)
+        if args.json == "-":
+            print(text)
+        else:
+            path = Path(args.json)
+            if path.parent and not path.parent.exists():
+                path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_text(text + "\n")
+            print(f"wrote {path}")
+    if args.out:
+        from hbench.diagnose.report import write_report
+
+        html, md = write_report(d, Path(args.out))
+        print(f"wrote {html} and {md}")
+    return 0

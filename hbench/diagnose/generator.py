@@ -1,0 +1,464 @@
+"""Synthetic records with one hidden effect, for testing ``hbench diagnose``.
+
+A *case* is drawn from a seed: a plant among the built-ins with random parameters
+(``first-order``: gain 0.5-2, time constant 1-4 s, delay 1-2 samples; ``discrete``: a complex
+pole pair of radius 0.75-0.9 or two real poles in 0.5-0.9, ``b = (1, 0.2-0.6)``, delay 0-2),
+a nonlinearity class with random parameters, a proportional controller (loop gain 0.3-1.2 at
+DC), ``p`` in {4, 5, 6} at ``T = 0.6 s``, 800-1000 slow samples, the noise level and, unless
+the case is nominal, ONE effect from the catalogue with random parameters in the ranges below.
+The record is simulated in closed loop (:func:`hbench.simulate.simulate`; the time-varying
+case runs the same lifted loop with a plant that changes mid-record) and written with
+:func:`hbench.readers.write_record`, so a test sees only the file.
+
+Nominal conditions (what the nominal model of :mod:`hbench.diagnose.nominal` assumes): plant of
+order ``na <= 2`` with the delay's multiple of p equal to 0 (A3), equation-error noise
+``v = sigma e / A(q)`` with the plant's own ``A`` (the paper's eq. 2, which the
+bias-compensated LSM is built for) at SNR ``std(y0) / std(v)`` 10 to 30, time-invariant, no
+outliers. The reference is a random-level signal (:class:`RandomLevels`), so that ``x``
+visits its whole range. Effects (ranges, with ``s`` the standard deviation of the noise-free
+output of a linear pilot run):
+
+* ``colored-noise``: coloured equation noise (the paper's Table 4 case, which biases the LSM)
+  ``v = sigma (1 + c1 q^-1) / ((1 - d1 q^-1) A(q)) e``, ``d1`` in [0.85, 0.97], ``c1`` in
+  [0, 0.5], at SNR 1.5 to 3, instead of the nominal ``e / A``.
+* ``drift``: a ramp ``D t / t_end`` plus a random walk of 5 % of ``D`` over the record added to
+  ``y`` (inside the loop: the controller sees it), ``|D|`` in [1.5, 3] ``s``.
+* ``delay``: the plant's delay grows by ``k p`` fast samples, ``k`` in {1, 2, 3}: ``x`` and the
+  inner signal are misaligned by ``k`` slow periods against the nominal A3.
+* ``outliers``: spikes on 0.5 to 1.5 % of the fast samples, amplitude 3 to 6 ``s`` with a random
+  sign (inside the loop).
+* ``time-varying``: at a fraction 0.3 to 0.42 of the record the plant's gain is multiplied by
+  ``g`` in [1.8, 2.5] or [0.35, 0.55] and its poles' time constants by 0.6 to 0.8 (same orders,
+  the state carried over).
+* ``order``: a third-order plant (``discrete`` with a slow real pole in [0.9, 0.97] and a
+  resonant pair of radius 0.75-0.9 at 0.3-0.7 rad) against the nominal ``na <= 2``.
+
+Nonlinearity parameters scale with ``r_x``, the 1st-99th percentile range of ``x`` in the pilot
+run: backlash ``width`` 0.2 to 0.4 ``r_x``; dead zone band ``[-d1, d2]`` with ``d1, d2`` 0.1 to
+0.2 ``r_x``; saturation at the 10-25 % and 75-90 % quantiles of ``x``; stiction ``S`` 0.2 to 0.4
+``r_x`` and ``J / S`` 0.4 to 0.8.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hbench import scenarios
+from hbench.noise import NoiseModel
+from hbench.plants import DiscretePlant
+from hbench.records import Record
+from hbench.signals import Reference
+from hbench.simulate import LiftedPlant, Scenario, simulate
+
+EFFECTS: tuple[str, ...] = (
+    "none",
+    "colored-noise",
+    "drift",
+    "delay",
+    "outliers",
+    "time-varying",
+    "order",
+)
+CLASSES: tuple[str, ...] = ("linear", "backlash", "deadband", "saturation", "stiction")
+
+#: Nominal plants (na <= 2), drawn with random parameters. Left out: the built-in ``nmp``, whose
+#: ``B(1)`` is 5 % of ``b1``, next to assumption A4, so that its inner signal is barely
+#: determined (the blind estimate of U is off by 60-90 %); and ``paper``, whose DC gain of 55
+#: with poles at 0.99 makes the open-loop simulation from ``x`` ill-conditioned (the nominal
+#: model's validation fit is 10-40 % even without an effect), which hides every effect.
+NOMINAL_PLANTS: tuple[str, ...] = ("first-order", "discrete")
+#: Third-order plants for the ``order`` effect: ``discrete`` with a slow real pole and a
+#: resonant pair, which no second-order model follows. (The built-in ``third-order`` has a zero
+#: at s = -0.5 next to its pole at -0.4, so it is second order in effect: a second-order model
+#: simulates it to 92-96 %.)
+ORDER_PLANTS: tuple[str, ...] = ("discrete3",)
+
+
+def _draw_plant(name: str, rng: np.random.Generator) -> tuple[dict[str, Any], float]:
+    """A plant spec with random parameters and a proportional gain for a well-damped loop."""
+    if name == "first-order":
+        gain = float(rng.uniform(0.5, 2.0))
+        spec = {
+            "name": "first-order",
+            "gain": gain,
+            "time_constant": float(rng.uniform(1.0, 4.0)),
+            "delay": int(rng.integers(1, 3)),
+        }
+        return spec, float(rng.uniform(0.5, 1.2)) / gain
+    if name == "third-order":
+        return {"name": "third-order", "delay": int(rng.integers(1, 3))}, float(
+            rng.uniform(0.8, 1.2)
+        )
+    if name == "discrete":
+        if rng.random() < 0.5:
+            rad, ang = rng.uniform(0.75, 0.9), rng.uniform(0.2, 0.5)
+            poles = [rad * np.exp(1j * ang), rad * np.exp(-1j * ang)]
+        else:
+            poles = list(np.sort(rng.uniform(0.5, 0.9, 2)))
+        a = np.real(np.poly(poles))
+        b = np.array([1.0, float(rng.uniform(0.2, 0.6))])
+    else:  # discrete3: a slow real pole and a resonant pair
+        rad, ang = rng.uniform(0.75, 0.9), rng.uniform(0.3, 0.7)
+        poles = [rng.uniform(0.9, 0.97), rad * np.exp(1j * ang), rad * np.exp(-1j * ang)]
+        a = np.real(np.poly(poles))
+        b = np.array([1.0, float(rng.uniform(0.2, 0.6))])
+    spec = {
+        "name": "discrete",
+        "a": [float(v) for v in a],
+        "b": [float(v) for v in b],
+        "delay": int(rng.integers(0, 3)),
+    }
+    # loop gain 0.3-0.6 at DC: the slow-rate loop sees p fast steps of the plant
+    return spec, float(rng.uniform(0.3, 0.6) * np.sum(a) / np.sum(b))
+
+
+class RandomLevels(Reference):
+    """Random steps: levels uniform in ``[-amplitude, amplitude]`` held for a geometric number
+    of slow periods (mean ``hold``), so that ``x`` visits its whole range (a binary reference
+    leaves the middle of an actuator's characteristic unseen)."""
+
+    name = "random-levels"
+
+    def __init__(self, amplitude: float = 1.0, hold: float = 2.5) -> None:
+        self.amplitude, self.hold, self.per_run = float(amplitude), float(hold), True
+
+    def params(self) -> dict[str, Any]:
+        return {"amplitude": self.amplitude, "hold": self.hold}
+
+    def draw(self, rng: np.random.Generator, K: int) -> np.ndarray:
+        out = np.empty(K)
+        k = 0
+        while k < K:
+            n = int(rng.geometric(1.0 / self.hold))
+            out[k : k + n] = rng.uniform(-self.amplitude, self.amplitude)
+            k += n
+        return out
+
+
+class InjectedNoise(NoiseModel):
+    """The output disturbance of a case: white or ARMA noise plus a drift and spikes.
+
+    ``shape`` returns the disturbance itself (the scenario's ``sigma2`` is 1), so the effect's
+    amplitudes are absolute.
+    """
+
+    name = "injected"
+
+    def __init__(
+        self, sigma: float, c: Any = (1.0,), d: Any = None, additive: np.ndarray | None = None
+    ) -> None:
+        self.sigma = float(sigma)
+        self.c = np.asarray(c, float)
+        self.d = None if d is None else np.asarray(d, float)
+        self.additive = None if additive is None else np.asarray(additive, float)
+
+    def params(self) -> dict[str, Any]:
+        return {
+            "sigma": self.sigma,
+            "c": self.c.tolist(),
+            "d": None if self.d is None else self.d.tolist(),
+        }
+
+    def filter(self, plant: DiscretePlant) -> tuple[np.ndarray, np.ndarray]:
+        """``(c, d)``; ``d`` None means the plant's own ``A`` (ARX noise, the paper's eq. 2)."""
+        return self.c, (plant.a if self.d is None else self.d)
+
+    def shape(self, e: np.ndarray, plant: DiscretePlant) -> np.ndarray:
+        v = self.sigma * super().shape(e, plant)
+        if self.additive is not None:
+            v = v + self.additive[None, : v.shape[1]]
+        return v
+
+
+@dataclass(frozen=True)
+class Case:
+    """One synthetic record's recipe (plain data; JSON-ready through :meth:`as_dict`)."""
+
+    seed: int
+    effect: str
+    cls: str
+    plant: dict[str, Any]
+    kp: float
+    p: int
+    T: float
+    K: int
+    snr: float
+    nl_params: dict[str, float] = field(default_factory=dict)
+    effect_params: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def name(self) -> str:
+        return f"case{self.seed:04d}_{self.effect}_{self.cls}"
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+# --------------------------------------------------------------------------- drawing a case
+
+
+def _spec(
+    plant: dict[str, Any],
+    kp: float,
+    p: int,
+    T: float,
+    K: int,
+    nl: dict[str, Any],
+    noise: dict[str, Any],
+) -> dict[str, Any]:
+    spec = copy.deepcopy(scenarios.PAPER_SECTION6)
+    spec.update(
+        name="diagnose-case",
+        plant=copy.deepcopy(plant),
+        nonlinearity=nl,
+        controller={"name": "p", "kp": kp},
+        noise=noise,
+        reference={"name": "rbs", "band": [0.0, 0.4], "amplitude": 1.0},  # replaced below
+        T=T,
+        p=p,
+        duration=K * T,
+    )
+    return spec
+
+
+def _pilot(
+    plant: dict[str, Any], kp: float, p: int, T: float, K: int, seed: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(x, y0)`` of the loop with a linear actuator and no noise."""
+    spec = _spec(plant, kp, p, T, K, {"name": "linear"}, {"name": "white", "sigma2": 0.0})
+    sc = scenarios.build(spec)
+    sc.reference = RandomLevels()
+    rec, truth = simulate(sc, 1, np.random.default_rng(seed))
+    return rec.x[0], truth.y0[0]
+
+
+def _radius(plant: dict[str, Any], kp: float, p: int, T: float) -> float:
+    from hbench.simulate import closed_loop_radius
+
+    sc = scenarios.build(
+        _spec(plant, kp, p, T, 10, {"name": "linear"}, {"name": "white", "sigma2": 0.0})
+    )
+    return closed_loop_radius(sc.discrete_plant, sc.controller, p)
+
+
+def _nl_params(cls: str, x: np.ndarray, rng: np.random.Generator) -> dict[str, float]:
+    lo, hi = np.percentile(x, [1, 99])
+    rx = float(hi - lo)
+    if cls == "linear":
+        return {}
+    if cls == "backlash":
+        return {"d": rx * rng.uniform(0.2, 0.4)}
+    if cls == "deadband":
+        return {"d1": rx * rng.uniform(0.1, 0.2), "d2": rx * rng.uniform(0.1, 0.2)}
+    if cls == "saturation":
+        return {
+            "u_min": float(np.quantile(x, rng.uniform(0.1, 0.25))),
+            "u_max": float(np.quantile(x, rng.uniform(0.75, 0.9))),
+        }
+    if cls == "stiction":
+        S = rx * rng.uniform(0.2, 0.4)
+        return {"S": S, "J": S * rng.uniform(0.4, 0.8)}
+    raise ValueError(cls)
+
+
+def draw_case(seed: int, effect: str | None = None, cls: str | None = None) -> Case:
+    """The case of ``seed``; ``effect`` and ``cls`` are drawn too unless given."""
+    rng = np.random.default_rng(np.random.SeedSequence([20240601, seed]))
+    effect = effect if effect is not None else EFFECTS[int(rng.integers(len(EFFECTS)))]
+    cls = cls if cls is not None else CLASSES[int(rng.integers(len(CLASSES)))]
+    if effect not in EFFECTS:
+        raise ValueError(f"unknown effect {effect!r}")
+    table = ORDER_PLANTS if effect == "order" else NOMINAL_PLANTS
+    p = int(rng.choice([4, 5, 6]))
+    T = 0.6
+    K = int(rng.integers(800, 1001))
+    for _ in range(20):  # redraw a plant whose loop is not stable enough
+        plant, kp = _draw_plant(table[int(rng.integers(len(table)))], rng)
+        if _radius(plant, kp, p, T) < 0.9:
+            break
+    snr = float(rng.uniform(10, 30))
+    x, y0 = _pilot(plant, kp, p, T, K, seed)
+    nl_params = _nl_params(cls, x, rng)
+    s = float(np.std(y0))
+    ep: dict[str, Any] = {}
+    if effect == "colored-noise":
+        snr = float(rng.uniform(1.5, 3.0))
+        ep = {"d1": float(rng.uniform(0.85, 0.97)), "c1": float(rng.uniform(0.0, 0.5))}
+    elif effect == "drift":
+        ep = {"D": float(rng.choice([-1, 1]) * rng.uniform(1.5, 3.0) * s), "walk": 0.05}
+    elif effect == "delay":
+        ep = {"k": int(rng.integers(1, 4))}
+    elif effect == "outliers":
+        ep = {"share": float(rng.uniform(0.005, 0.015)), "amplitude": [3.0 * s, 6.0 * s]}
+    elif effect == "time-varying":
+        g = rng.uniform(1.8, 2.5) if rng.random() < 0.5 else rng.uniform(0.35, 0.55)
+        ep = {
+            "at": float(rng.uniform(0.3, 0.42)),
+            "gain": float(g),
+            "time_constant": float(rng.uniform(0.6, 0.8)),
+        }
+    ep["s"] = s
+    return Case(
+        seed=seed,
+        effect=effect,
+        cls=cls,
+        plant=plant,
+        kp=float(kp),
+        p=p,
+        T=T,
+        K=K,
+        snr=snr,
+        nl_params=nl_params,
+        effect_params=ep,
+    )
+
+
+# --------------------------------------------------------------------------- simulating a case
+
+
+def _nl_spec(case: Case) -> dict[str, Any]:
+    out: dict[str, Any] = {"name": case.cls, **case.nl_params}
+    if case.cls in ("backlash", "stiction"):
+        out["u0"] = None
+    return out
+
+
+def _filter_norm(c: Any, d: Any) -> float:
+    """``||C/D||_2``: the standard deviation of ``C/D e`` for unit white ``e``."""
+    from scipy import signal as sps
+
+    imp = np.zeros(4000)
+    imp[0] = 1.0
+    return float(np.linalg.norm(sps.lfilter(c, d, imp)))
+
+
+def _noise(case: Case, N: int, rng: np.random.Generator, plant: DiscretePlant) -> InjectedNoise:
+    ep, s = case.effect_params, case.effect_params["s"]
+    c: tuple[float, ...] = (1.0,)
+    d: tuple[float, ...] | None = None  # ARX: the plant's own A
+    add = np.zeros(N)
+    if case.effect == "colored-noise":
+        # coloured equation noise: A v = (1 + c1 q^-1) / (1 - d1 q^-1) e
+        c, d = (1.0, ep["c1"]), tuple(np.convolve([1.0, -ep["d1"]], plant.a))
+    elif case.effect == "drift":
+        t = np.arange(N) / N
+        walk = np.cumsum(rng.standard_normal(N))
+        walk = walk / max(float(np.max(np.abs(walk))), 1e-12) * ep["walk"] * abs(ep["D"])
+        add = ep["D"] * t + walk
+    elif case.effect == "outliers":
+        n_out = max(round(ep["share"] * N), 3)
+        at = rng.choice(np.arange(50, N), size=n_out, replace=False)
+        lo, hi = ep["amplitude"]
+        add[at] = rng.choice([-1.0, 1.0], n_out) * rng.uniform(lo, hi, n_out)
+    # sigma so that the noise (without drift and spikes) has the case's SNR
+    sigma = s / case.snr / _filter_norm(c, plant.a if d is None else d)
+    return InjectedNoise(sigma, c, d, add)
+
+
+def _scenario(case: Case, noise: NoiseModel, plant: dict[str, Any] | None = None) -> Scenario:
+    plant = copy.deepcopy(plant or case.plant)
+    if case.effect == "delay":
+        plant["delay"] = int(plant.get("delay", 0)) + case.effect_params["k"] * case.p
+    spec = _spec(
+        plant, case.kp, case.p, case.T, case.K, _nl_spec(case), {"name": "white", "sigma2": 1.0}
+    )
+    sc = scenarios.build(spec)
+    sc.noise = noise
+    sc.reference = RandomLevels()
+    return sc
+
+
+def _changed_plant(plant: DiscretePlant, gain: float, tc: float) -> DiscretePlant:
+    """``plant`` with its gain times ``gain`` and the time constants of its poles times ``tc``."""
+    poles = plant.poles
+    new_poles = np.where(
+        np.abs(poles) > 0, np.abs(poles) ** (1 / tc) * np.exp(1j * np.angle(poles) / tc), poles
+    )
+    a = np.real(np.poly(new_poles)) if poles.size else np.ones(1)
+    b = plant.b * gain * np.sum(a) / np.sum(plant.a)  # DC gain times ``gain``
+    return DiscretePlant(a=a, b=b, delay=plant.delay, h=plant.h, name=plant.name + "-changed")
+
+
+def _simulate_switched(
+    sc: Scenario, plant2: DiscretePlant, n_switch: int, rng: np.random.Generator
+) -> Record:
+    """The closed loop of ``sc`` with the plant replaced by ``plant2`` from slow sample
+    ``n_switch`` on (the state vector carried over: same orders, same realisation)."""
+    from hbench.seeding import run_streams
+
+    p, K = sc.p, sc.K
+    N = K * p
+    streams = run_streams(rng, 1, ("reference", "noise"))
+    r = sc.reference.generate(streams["reference"], K)
+    e = np.stack([g.standard_normal(N) for g in streams["noise"]])
+    v = sc.noise.shape(e, sc.discrete_plant)
+    lps = [LiftedPlant.from_plant(sc.discrete_plant, p), LiftedPlant.from_plant(plant2, p)]
+    s = np.zeros((1, lps[0].Fp.shape[0]))
+    cstate = sc.controller.initial_state(1)
+    nstate = sc.nonlinearity.initial_state(1)
+    y0 = np.empty((1, N))
+    X = np.empty((1, K))
+    for n in range(K):
+        lp = lps[int(n >= n_switch)]
+        yfast = s @ lp.Ob.T  # (1, p) before this period's input
+        x, cstate = sc.controller.step(r[:, n] - (yfast[:, 0] + v[:, n * p]), cstate)
+        u, nstate = sc.nonlinearity.step(x, nstate)
+        y0[:, n * p : (n + 1) * p] = yfast + u[:, None] * lp.Db[None, :]
+        X[:, n] = x
+        s = s @ lp.Fp.T + u[:, None] * lp.Gp
+    return Record(y=y0 + v, x=X, r=r, p=p, h=sc.h, source="simulation", meta={"scenario": sc.name})
+
+
+def simulate_case(case: Case) -> Record:
+    """The record of ``case`` (one run)."""
+    rng = np.random.default_rng(np.random.SeedSequence([20240602, case.seed]))
+    N = case.K * case.p
+    sc = _scenario(case, InjectedNoise(0.0))
+    sc.noise = _noise(case, N, rng, sc.discrete_plant)
+    if case.effect == "time-varying":
+        ep = case.effect_params
+        plant2 = _changed_plant(sc.discrete_plant, ep["gain"], ep["time_constant"])
+        return _simulate_switched(sc, plant2, int(ep["at"] * case.K), rng)
+    record, _ = simulate(sc, 1, rng)
+    return record
+
+
+def write_case(case: Case, directory: Path | str, suffix: str = ".csv") -> Path:
+    """Simulate ``case`` and write its record to ``directory``; the truth goes to a sidecar
+    ``.truth.json`` that the diagnosis never reads."""
+    from hbench.readers import write_record
+
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    path = write_record(simulate_case(case), directory / f"{case.name}{suffix}")
+    (directory / f"{case.name}.truth.json").write_text(json.dumps(case.as_dict(), indent=1))
+    return path
+
+
+def balanced_cases(n: int, start: int = 0) -> list[Case]:
+    """``n`` cases cycling through every (effect, class) pair: seed ``start + i`` gets effect
+    ``EFFECTS[i % 7]`` and class ``CLASSES[(i // 7) % 5]``."""
+    return [
+        draw_case(start + i, EFFECTS[i % len(EFFECTS)], CLASSES[(i // len(EFFECTS)) % len(CLASSES)])
+        for i in range(n)
+    ]
+
+
+def cases_per_effect(
+    per_effect: int, start: int = 0, effects: tuple[str, ...] = EFFECTS
+) -> list[Case]:
+    """``per_effect`` cases of every effect (``none`` included), seeds ``start, start + 1, ..``
+    in turn, the class cycling through :data:`CLASSES`."""
+    out = []
+    i = 0
+    for _ in range(per_effect):
+        for effect in effects:
+            out.append(draw_case(start + i, effect, CLASSES[i % len(CLASSES)]))
+            i += 1
+    return out

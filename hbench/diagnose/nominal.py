@@ -1,0 +1,603 @@
+"""Step 1 of the workflow: the nominal model of a record.
+
+``p >= 2`` (output fast-sampling): ``G`` and the inner signal ``U`` are identified blindly on the
+fit part (default ``wang-lsm``, orders ``na <= 2`` (:data:`NA_NOMINAL`), the delay's multiple of
+``p`` as given, assumption A3); the actuator class is chosen on the graph ``(x(n), U(n))`` by BIC
+(:func:`hbench.diagnose.classes.fit_graph`, ``u = c f(x; theta) + d``); the simulated output is
+``y_hat = k G(q) f(x) + m`` with ``k, m`` by least squares on the fit part. The noise model is
+the paper's: equation error ``e / A(q)``, so the model's innovations are ``A(q) (y - y_hat)``.
+
+``p = 1`` (a plant log: no fast sampling, so no blind route): an output-error model from ``x`` to
+``y`` with orders ``na = nb`` in 1..3 and delay 0..8 by BIC on the fit part; every class fitted
+through the dynamics with the linear part re-fitted for each candidate
+(:func:`hbench.diagnose.classes.fit_dynamic`); a class beats ``linear`` only when its fit
+improves by :data:`DYNAMIC_MARGIN` points (see :func:`choose_dynamic`). The noise model is white
+output noise, so the innovations are the residuals.
+
+For ``p = 1`` the class is decided on the whole record (the sticking episodes that reveal a
+valve may lie anywhere in a plant log); the parameters of the nominal model (class parameters
+and linear part) are then fitted on the fit part only, like every model whose validation fit is
+reported.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from hbench.diagnose import classes, core
+from hbench.errors import InputError
+from hbench.identifiers import Estimate, IdentifyOptions, identify
+from hbench.records import Record
+
+#: Denominator orders of the nominal blind model (the ``order`` effect goes beyond).
+NA_NOMINAL: tuple[int, int] = (1, 2)
+#: Fewest slow samples in the fit part and in the validation part.
+MIN_FIT, MIN_VAL = 80, 40
+#: Output-error orders and delays searched for ``p = 1``.
+NA_DYNAMIC: tuple[int, ...] = (1, 2, 3)
+DELAYS_DYNAMIC: range = range(0, 9)
+
+#: p >= 2: a class other than linear needs a score (half a BIC difference) of at least this ...
+GRAPH_MARGIN = 3.0
+#: ... and a fitted map that departs from a straight line by this share of its variance
+#: (:func:`hbench.diagnose.classes.strength`).
+MIN_STRENGTH = 0.01
+#: p >= 2: stiction (which holds backlash as J = 0) must beat backlash's score by this much ...
+GRAPH_NEST_MARGIN = 2.0
+#: ... and show a slip jump of at least this share of S (J = 0 is backlash).
+MIN_JUMP_SHARE = 0.15
+#: p = 1: a class beats linear when its simulation fit improves by at least this (points of %).
+#: Tuned on the development loops of ``../shared/data/stictiongpt``: there the memory classes
+#: gained at most 1.6 points on records without stiction.
+DYNAMIC_MARGIN = 3.0
+#: p = 1: a static class (dead zone, saturation) is preferred to the best memory class
+#: (stiction, backlash) only when its fit exceeds it by this many points.
+DYNAMIC_STATIC_MARGIN = 3.0
+#: p = 1, shape test for oscillating loops: an oscillation is regular when Thornhill's
+#: regularity exceeds this (the literature's value) ...
+REGULARITY = 1.0
+#: ... and a regular oscillation whose controller output is this triangular (He et al.'s
+#: stiction index; they use 0.6) is a sticking valve. 0.7 is set on the development loops:
+#: 0.73-0.86 for the oscillating loop with stiction, at most 0.63 for those without.
+SHAPE_INDEX = 0.7
+
+
+@dataclass
+class Context:
+    """A record split into its fit and validation parts (one run)."""
+
+    record: Record
+    x: np.ndarray
+    y: np.ndarray
+    r: np.ndarray | None
+    p: int
+    h: float
+    k_fit: int
+    options: Any = None
+
+    @property
+    def K(self) -> int:
+        return self.x.size
+
+    @property
+    def N(self) -> int:
+        return self.y.size
+
+    @property
+    def n_fit(self) -> int:
+        """Fast samples in the fit part."""
+        return self.k_fit * self.p
+
+    @property
+    def fit_idx(self) -> np.ndarray:
+        return np.arange(self.n_fit)
+
+    @property
+    def val_idx(self) -> np.ndarray:
+        return np.arange(self.n_fit, self.N)
+
+    @property
+    def all_idx(self) -> np.ndarray:
+        return np.arange(self.N)
+
+    def part(self, k0: int, k1: int) -> Record:
+        """The sub-record of slow samples ``k0 .. k1 - 1``."""
+        p = self.p
+        return Record(
+            y=self.y[None, k0 * p : k1 * p],
+            x=self.x[None, k0:k1],
+            r=None if self.r is None else self.r[None, k0:k1],
+            p=p,
+            h=self.h,
+            source=self.record.source,
+        )
+
+
+def make_context(record: Record, fit_fraction: float = 2 / 3, options: Any = None) -> Context:
+    """Check that ``record`` can be diagnosed and split it."""
+    if record.runs != 1:
+        raise InputError(f"diagnose takes one run, the record has {record.runs}")
+    if record.x is None:
+        raise InputError("diagnose needs x (the controller output)")
+    if not 0.2 <= fit_fraction <= 0.9:
+        raise InputError(f"the fit fraction must lie in [0.2, 0.9], got {fit_fraction:g}")
+    x = np.asarray(record.x[0], float)
+    y = np.asarray(record.y[0], float)
+    K = x.size
+    k_fit = int(np.floor(fit_fraction * K))
+    if k_fit < MIN_FIT or K - k_fit < MIN_VAL:
+        need = int(np.ceil(max(MIN_FIT / fit_fraction, MIN_VAL / (1 - fit_fraction))))
+        raise InputError(
+            f"the record is too short for the validation split: {K} slow samples (p = "
+            f"{record.p}); fitting on {fit_fraction:.3g} of it and validating on the rest needs "
+            f"at least {need} slow samples ({need * record.p} rows), {MIN_FIT} to fit and "
+            f"{MIN_VAL} to validate"
+        )
+    for name, v in (("y", y), ("x", x)):
+        if np.ptp(v) == 0:
+            raise InputError(
+                f"{name} is constant over the record ({v[0]:.6g}): nothing to identify"
+            )
+    if np.ptp(y[: k_fit * record.p]) == 0 or np.ptp(x[:k_fit]) == 0:
+        raise InputError("x or y is constant over the fit part: nothing to identify")
+    r = None if record.r is None else np.asarray(record.r[0], float)
+    return Context(record, x, y, r, int(record.p), float(record.h), k_fit, options)
+
+
+@dataclass
+class Nominal:
+    """The nominal model and what it leaves."""
+
+    model: core.Model
+    class_fits: dict[str, classes.ClassFit]
+    chosen: str
+    yhat: np.ndarray
+    resid: np.ndarray
+    innov: np.ndarray
+    U: np.ndarray | None = None
+    estimate: Estimate | None = None
+    structure: dict[str, int] = field(default_factory=dict)
+    lin_structure: classes.LinearStructure | None = None
+    info: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def scores(self) -> dict[str, float]:
+        return {c: float(f.score) for c, f in self.class_fits.items()}
+
+
+def innovations(model: core.Model, resid: np.ndarray) -> np.ndarray:
+    """The nominal noise model's innovations: ``A(q) resid`` for p >= 2 (equation error),
+    ``resid`` for p = 1 (output error)."""
+    if model.p == 1 or model.info.get("noise") == "output-error":
+        return resid.copy()
+    from scipy import signal
+
+    return signal.lfilter(model.lin.a, [1.0], resid)
+
+
+def finish(
+    model: core.Model,
+    ctx: Context,
+    idx: np.ndarray | None = None,
+    *,
+    trend: int = 0,
+    weights: np.ndarray | None = None,
+    refit_output: bool = True,
+) -> tuple[core.Model, np.ndarray, np.ndarray, np.ndarray]:
+    """Fit the output scale (and trend) on ``idx`` (default: the fit part), simulate, and
+    return ``(model, yhat, resid, innov)``."""
+    idx = ctx.fit_idx if idx is None else idx
+    if refit_output:
+        model = core.fit_output(model, ctx.x, ctx.y, idx, trend=trend, weights=weights)
+    yhat = model.simulate(ctx.x)
+    resid = ctx.y - yhat
+    return model, yhat, resid, innovations(model, resid)
+
+
+# --------------------------------------------------------------------------- p >= 2: blind
+
+
+def identify_blind(
+    ctx: Context,
+    method: str = "wang-lsm",
+    *,
+    record: Record | None = None,
+    na_range: tuple[int, int] = NA_NOMINAL,
+    na: int | None = None,
+    delay_multiple: int = 0,
+) -> Estimate:
+    """The blind method on ``record`` (default: the fit part)."""
+    from hbench.plugins import registry
+
+    rec = record if record is not None else ctx.part(0, ctx.k_fit)
+    cls = registry().get("identifiers", method)
+    nb_max = int(min(3, ctx.p - 1))
+    opts = IdentifyOptions(
+        nb_max=nb_max, na_range=na_range, na=na, delay_multiple=int(delay_multiple)
+    )
+    est = identify(cls(), rec, opts)
+    if not bool(est.identifiable[0]) or np.all(np.isnan(est.U[0])):
+        why = est.reason[0] or "no inner-signal estimate"
+        raise InputError(f"the blind method {method!r} cannot identify this record: {why}")
+    return est
+
+
+def linear_from_estimate(est: Estimate, p: int, delay_multiple: int = 0) -> core.Linear:
+    na, nb, tau = int(est.na[0]), int(est.nb[0]), int(est.tau[0])
+    a = np.concatenate([[1.0], est.a[0, :na]])
+    return core.Linear(a=core.stabilise(a), b=est.b[0, :nb].copy(), delay=tau + delay_multiple * p)
+
+
+def choose_graph(fits: dict[str, classes.ClassFit]) -> str:
+    """The class on the (x, U) graph: the best score if it reaches :data:`GRAPH_MARGIN`;
+    stiction over backlash only by :data:`GRAPH_NEST_MARGIN` more and with a slip jump
+    ``J >= MIN_JUMP_SHARE S``."""
+    cands = {
+        c: f.score
+        for c, f in fits.items()
+        if c != "linear" and f.score >= GRAPH_MARGIN and f.info.get("strength", 1.0) >= MIN_STRENGTH
+    }
+    if not cands:
+        return "linear"
+    if "stiction" in cands and "backlash" in fits:
+        th = fits["stiction"].theta
+        if (
+            cands["stiction"] < fits["backlash"].score + GRAPH_NEST_MARGIN
+            or th["J"] < MIN_JUMP_SHARE * th["S"]
+        ):
+            cands.pop("stiction")
+            bl = fits["backlash"]
+            if bl.score >= GRAPH_MARGIN and bl.info.get("strength", 1.0) >= MIN_STRENGTH:
+                cands["backlash"] = bl.score
+    if not cands:
+        return "linear"
+    return max(cands, key=lambda c: cands[c])
+
+
+def model_from_blind(
+    ctx: Context,
+    est: Estimate,
+    *,
+    shift: int = 0,
+    delay_multiple: int = 0,
+    cls: str | None = None,
+    label: str = "nominal",
+    k_end: int | None = None,
+) -> tuple[core.Model, dict[str, classes.ClassFit], str, np.ndarray]:
+    """Class fits on the (x, U) graph of ``est`` (slow samples ``< k_end``, default the fit
+    part) and the model they give."""
+    k_end = ctx.k_fit if k_end is None else k_end
+    U = np.full(ctx.K, np.nan)
+    Uf = est.U[0][:k_end]
+    U[: Uf.size] = Uf
+    fits = classes.fit_graph(ctx.x[:k_end], U[:k_end], shift=shift)
+    chosen = cls if cls is not None else choose_graph(fits)
+    lin = linear_from_estimate(est, ctx.p, delay_multiple)
+    theta = fits[chosen].theta
+    model = core.Model(
+        cls=chosen,
+        theta=theta,
+        lin=lin,
+        p=ctx.p,
+        shift=shift,
+        label=label,
+        info={
+            "noise": "equation-error",
+            "na": int(est.na[0]),
+            "nb": int(est.nb[0]),
+            "tau": int(est.tau[0]),
+            "method": est.method,
+            "delay_multiple": int(delay_multiple),
+            "class_fits": fits,
+        },
+    )
+    return model, fits, chosen, U
+
+
+def nominal_blind(ctx: Context, method: str = "wang-lsm", delay_multiple: int = 0) -> Nominal:
+    est = identify_blind(ctx, method, delay_multiple=delay_multiple)
+    model, fits, chosen, U = model_from_blind(ctx, est, delay_multiple=delay_multiple)
+    model = arx_refine(model, ctx)
+    model, yhat, resid, innov = finish(model, ctx, refit_output=False)
+    structure = {
+        "na": int(est.na[0]),
+        "nb": int(est.nb[0]),
+        "tau": int(est.tau[0]),
+        "delay": int(model.lin.delay),
+    }
+    return Nominal(
+        model=model,
+        class_fits=fits,
+        chosen=chosen,
+        yhat=yhat,
+        resid=resid,
+        innov=innov,
+        U=U,
+        estimate=est,
+        structure=structure,
+        info={"route": "blind", "method": method},
+    )
+
+
+def shifted(x: np.ndarray, shift: int) -> np.ndarray:
+    """``x(n - shift)`` (the first value repeated before the start)."""
+    x = np.asarray(x, float)
+    return x if shift <= 0 else np.concatenate([np.full(shift, x[0]), x[:-shift]])
+
+
+def arx_refine(
+    model: core.Model,
+    ctx: Context,
+    idx: np.ndarray | None = None,
+    *,
+    na: int | None = None,
+    nb: int | None = None,
+) -> core.Model:
+    """The blind model's actuator parameters and linear part re-fitted together by equation
+    error on ``idx`` (class, delay and shift kept; ``nb`` at least 2), output scale and
+    initial transient by least squares on the simulation.
+
+    Equation error is the nominal noise model's own criterion (``e / A``, the paper's eq. 2),
+    so the refit is consistent exactly where the blind LSM is, and biased where it is
+    (coloured equation noise: the ``colored-noise`` extension). The blind inner signal is
+    noisy; its graph gives the class and a starting point, the refit the parameters.
+    """
+    idx = ctx.fit_idx if idx is None else idx
+    na = model.lin.na if na is None else na
+    nb = max(model.lin.nb, 2) if nb is None else nb
+    xs = shifted(ctx.x, model.shift)
+    theta, _, th = classes.fit_equation_error(
+        model.cls, xs, ctx.y, ctx.p, idx, na, nb, model.lin.delay, theta0=model.theta or None
+    )
+    a = core.stabilise(np.concatenate([[1.0], th[:na]]))
+    lin = core.Linear(a=a, b=np.asarray(th[na : na + nb]), delay=model.lin.delay)
+    m = model.with_(
+        theta=theta, lin=lin, gain=1.0, offset=0.0, info={**model.info, "refit": "equation-error"}
+    )
+    return core.fit_output(m, ctx.x, ctx.y, idx)
+
+
+def nominal_family_fit(
+    model: core.Model, ctx: Context, idx: np.ndarray | None = None, **kw: Any
+) -> core.Model:
+    """Fit ``model`` on ``idx`` the way the nominal model is fitted (equation error for the
+    blind route, output error for ``p = 1``)."""
+    idx = ctx.fit_idx if idx is None else idx
+    if ctx.p >= 2:
+        return arx_refine(model, ctx, idx, **kw)
+    m = refit_linear(model, ctx, idx, **kw)
+    return core.fit_output(m, ctx.x, ctx.y, idx)
+
+
+# --------------------------------------------------------------------------- p = 1: dynamic
+
+
+def choose_dynamic(fits: dict[str, classes.ClassFit]) -> str:
+    """The class through the dynamics (``score``: fit gain over linear, points of %).
+
+    A class needs :data:`DYNAMIC_MARGIN`. Between the memory classes, stiction wins ties (it
+    holds backlash as ``J = 0``: in a plant log a valve's dead band is stiction's); a static
+    class wins over the best memory class only by :data:`DYNAMIC_STATIC_MARGIN`.
+    """
+    ok = {c: f.score for c, f in fits.items() if c != "linear" and f.score >= DYNAMIC_MARGIN}
+    if not ok:
+        return "linear"
+    memory = {c: ok[c] for c in ("stiction", "backlash") if c in ok}
+    static = {c: ok[c] for c in ("deadband", "saturation") if c in ok}
+    best_mem = None
+    if memory:
+        best_mem = (
+            "stiction"
+            if "stiction" in memory and memory["stiction"] >= max(memory.values()) - 1.0
+            else max(memory, key=lambda c: memory[c])
+        )
+    if static:
+        best_static = max(static, key=lambda c: static[c])
+        if best_mem is None or static[best_static] >= memory[best_mem] + DYNAMIC_STATIC_MARGIN:
+            return best_static
+    assert best_mem is not None
+    return best_mem
+
+
+def fit_dynamic_classes(
+    ctx: Context,
+    idx: np.ndarray,
+    lin: classes.LinearStructure,
+    which: tuple[str, ...] = core.CLASSES,
+) -> dict[str, tuple[classes.ClassFit, core.OEFit]]:
+    out: dict[str, tuple[classes.ClassFit, core.OEFit]] = {}
+    for cls in which:
+        theta0 = None
+        if cls == "stiction" and "backlash" in out:  # stiction holds backlash as J = 0
+            th = out["backlash"][0].theta
+            theta0 = {"S": th["width"], "J": 0.0, "d0": 1.0, "g0": th["g0"]}
+        out[cls] = classes.fit_dynamic(cls, ctx.x, ctx.y, ctx.p, idx, lin, theta0=theta0)
+    return out
+
+
+def nominal_dynamic(ctx: Context) -> Nominal:
+    """The ``p = 1`` route (also usable for ``p >= 2`` as a non-blind check)."""
+    u_lin = np.repeat(ctx.x, ctx.p) if ctx.p > 1 else ctx.x
+    delays = DELAYS_DYNAMIC if ctx.p == 1 else range(0, 3 * ctx.p)
+    # the class is decided on the whole record (module notes); parameters on the fit part
+    lin_all = classes.select_linear(u_lin, ctx.y, ctx.all_idx, na_values=NA_DYNAMIC, delays=delays)
+    whole = fit_dynamic_classes(ctx, ctx.all_idx, lin_all)
+    fl = core.fit_percent(ctx.y, whole["linear"][1].yhat)
+    fits: dict[str, classes.ClassFit] = {}
+    for cls, (cf, oe) in whole.items():
+        cf.score = 0.0 if cls == "linear" else core.fit_percent(ctx.y, oe.yhat) - fl
+        cf.info["fit_whole"] = core.fit_percent(ctx.y, oe.yhat)
+        fits[cls] = cf
+    chosen = choose_dynamic(fits)
+    shape = shape_test(ctx.x)
+    if chosen != "stiction" and shape["stiction"] and ctx.p == 1 and fits["stiction"].score >= 0.0:
+        # a regular oscillation with a triangular controller output: the curve-fitting
+        # evidence of a sticking valve that the fit through the dynamics did not resolve
+        chosen = "stiction"
+        shape["decided"] = True
+    lin_fit = classes.select_linear(u_lin, ctx.y, ctx.fit_idx, na_values=NA_DYNAMIC, delays=delays)
+    cf, oe = classes.fit_dynamic(chosen, ctx.x, ctx.y, ctx.p, ctx.fit_idx, lin_fit)
+    model = core.Model(
+        cls=chosen,
+        theta=cf.theta,
+        lin=oe.lin,
+        p=ctx.p,
+        gain=1.0,
+        offset=oe.offset,
+        init=oe.init,
+        label="nominal",
+        info={"noise": "output-error", "na": oe.lin.na, "nb": oe.lin.nb, "delay": oe.lin.delay},
+    )
+    model, yhat, resid, innov = finish(model, ctx)
+    structure = {"na": oe.lin.na, "nb": oe.lin.nb, "delay": oe.lin.delay}
+    return Nominal(
+        model=model,
+        class_fits=fits,
+        chosen=chosen,
+        yhat=yhat,
+        resid=resid,
+        innov=innov,
+        structure=structure,
+        lin_structure=lin_fit,
+        info={
+            "route": "output-error",
+            "shape_test": shape,
+            "class_fits_whole": {c: whole[c][0].theta for c in whole},
+        },
+    )
+
+
+def shape_test(x: np.ndarray) -> dict[str, Any]:
+    """Oscillation regularity (Thornhill) and the triangularity of the controller output
+    (He et al.'s curve fitting): the literature's stiction test for oscillating loops."""
+    from hbench.diagnose import stats
+
+    r, period = stats.regularity(x)
+    si = stats.stiction_index(x) if r > REGULARITY else float("nan")
+    return {
+        "regularity": float(r),
+        "period": float(period),
+        "shape_index": float(si),
+        "stiction": bool(r > REGULARITY and np.isfinite(si) and si > SHAPE_INDEX),
+        "decided": False,
+    }
+
+
+def fit_nominal(ctx: Context, method: str = "wang-lsm", delay_multiple: int = 0) -> Nominal:
+    """The nominal model: blind for ``p >= 2``, output error for ``p = 1``."""
+    if ctx.p >= 2:
+        return nominal_blind(ctx, method, delay_multiple)
+    return nominal_dynamic(ctx)
+
+
+def hammerstein_pem(
+    ctx: Context,
+    model: core.Model,
+    idx: np.ndarray,
+    *,
+    prefilter: np.ndarray | None = None,
+    which: tuple[str, ...] = core.CLASSES,
+    label: str = "pem",
+) -> tuple[core.Model, dict[str, classes.ClassFit], str]:
+    """Every class fitted through the dynamics on ``idx`` (non-blind: from ``x`` to ``y``), with
+    ``model``'s orders and delay, by output error or, with ``prefilter`` ``D``, by prediction
+    error with the noise model ``1 / D``; the class chosen by BIC as on the graph
+    (:func:`choose_graph`). Returns the chosen model (output scale fitted, unfiltered)."""
+    lin_m = model.lin
+    nb = max(lin_m.nb, 1)
+    oe0 = core.OEFit(lin=lin_m, offset=0.0, yhat=np.zeros(ctx.N), rss=np.inf, n=idx.size)
+    ls = classes.LinearStructure(lin_m.na, nb, lin_m.delay, oe0)
+    a_set = [lin_m.a]
+    fits: dict[str, classes.ClassFit] = {}
+    lins: dict[str, core.OEFit] = {}
+    for cls in which:
+        cf, oe = classes.fit_dynamic(
+            cls,
+            shifted(ctx.x, model.shift),
+            ctx.y,
+            ctx.p,
+            idx,
+            ls,
+            prefilter=prefilter,
+            delays=[lin_m.delay],
+            a_set=a_set,
+            top=2,
+            theta0=model.theta if cls == model.cls and model.theta else None,
+        )
+        cf.k = 2 * lin_m.na + 1 + core.N_SHAPE[cls]
+        cf.info["strength"] = classes.strength(cls, cf.theta, ctx.x[: idx.size // ctx.p])
+        fits[cls], lins[cls] = cf, oe
+    base = fits["linear"].bic if "linear" in fits else min(f.bic for f in fits.values())
+    for f in fits.values():
+        f.score = float((base - f.bic) / 2)
+    chosen = choose_graph(fits) if "linear" in fits else which[0]
+    m = core.Model(
+        cls=chosen,
+        theta=fits[chosen].theta,
+        lin=lins[chosen].lin,
+        p=ctx.p,
+        shift=model.shift,
+        label=label,
+        info={**model.info, "noise": "output-error", "class_fits": fits},
+    )
+    if prefilter is not None:
+        m = reanchor(m, ctx, idx)
+    return core.fit_output(m, ctx.x, ctx.y, idx), fits, chosen
+
+
+def reanchor(model: core.Model, ctx: Context, idx: np.ndarray) -> core.Model:
+    """The state a memory actuator starts in, re-chosen by the simulation error on ``idx``.
+
+    A prediction-error criterion with a low-pass noise model weighs the low frequencies
+    little, so the start state it picks (which sets the valve's offset until it first
+    moves) can be poor for simulation."""
+    if model.cls not in ("backlash", "stiction"):
+        return model
+    best: tuple[float, core.Model] | None = None
+    d0s = (1.0, -1.0) if model.cls == "stiction" else (None,)
+    for d0 in d0s:
+        for g0 in np.linspace(0.0, 1.0, 9):
+            th = {**model.theta, "g0": float(g0)}
+            if d0 is not None:
+                th["d0"] = d0
+            cand = core.fit_output(model.with_(theta=th), ctx.x, ctx.y, idx)
+            rss = float(np.sum((ctx.y - cand.simulate(ctx.x))[idx] ** 2))
+            if best is None or rss < best[0]:
+                best = (rss, cand)
+    assert best is not None
+    return best[1]
+
+
+def refit_linear(
+    model: core.Model,
+    ctx: Context,
+    idx: np.ndarray,
+    *,
+    na: int | None = None,
+    nb: int | None = None,
+    delay: int | None = None,
+    weights: np.ndarray | None = None,
+) -> core.Model:
+    """The model with its linear part re-fitted by output error on ``idx`` (class, parameters
+    and shift kept): the non-blind refit the extensions use."""
+    u = np.repeat(model.inner(ctx.x), ctx.p)
+    na = model.lin.na if na is None else na
+    nb = max(model.lin.nb, 1) if nb is None else nb
+    delay = model.lin.delay if delay is None else delay
+    same = model.lin.na == na
+    best = core.oe_fit(u, ctx.y, na, nb, delay, idx, weights=weights, refine=True)
+    if same:
+        for kw in ({"a_init": model.lin.a, "refine": True}, {"a_fixed": model.lin.a}):
+            g = core.oe_fit(u, ctx.y, na, nb, delay, idx, weights=weights, **kw)
+            if g.rss < best.rss:
+                best = g
+    return model.with_(
+        lin=best.lin,
+        gain=1.0,
+        offset=best.offset,
+        init=best.init,
+        info={**model.info, "noise": "output-error"},
+    )

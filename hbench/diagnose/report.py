@@ -1,0 +1,307 @@
+"""Step 5 of the workflow: the human-readable diagnosis (HTML with embedded figures, and
+Markdown with the same figures as PNG files beside it)."""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hbench.diagnose import core, stats
+
+FIGURES: tuple[tuple[str, str], ...] = (
+    ("simulation", "Measured output and the simulations of the nominal and the extended model"),
+    ("residual_time", "Nominal residual y - y_hat over time"),
+    ("residual_spectrum", "Periodogram of the nominal residual (fit part)"),
+    ("residual_acf", "Autocorrelation of the nominal model's innovations (fit part)"),
+    ("residual_vs_x", "Nominal residual against x"),
+    ("actuator", "The actuator: x against the inner signal and the fitted nonlinearity"),
+)
+
+
+def _fig_png(fig: Any) -> bytes:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def figures(d: Any) -> dict[str, bytes]:
+    """The report's figures as PNG bytes, by name."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    ctx, nom = d.ctx, d.nominal
+    t = np.arange(ctx.N) * ctx.h
+    t_split = ctx.n_fit * ctx.h
+    out: dict[str, bytes] = {}
+
+    fig, ax = plt.subplots(figsize=(9, 3.2))
+    ax.plot(t, ctx.y, color="0.55", lw=0.6, label="measured y")
+    ax.plot(
+        t,
+        nom.yhat,
+        color="C0",
+        lw=0.9,
+        label=f"nominal ({nom.model.cls}), validation fit {d.baseline_fit:.1f} %",
+    )
+    if d.cause not in ("none", "unexplained"):
+        ax.plot(
+            t,
+            d.extended.simulate(ctx.x),
+            color="C3",
+            lw=0.9,
+            label=f"extended ({d.cause}), validation fit {d.extended_fit:.1f} %",
+        )
+    ax.axvline(t_split, color="k", ls="--", lw=0.8)
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("y")
+    ax.legend(loc="best", fontsize=7)
+    ax.set_title("fit part | validation part", fontsize=8)
+    out["simulation"] = _fig_png(fig)
+
+    fig, ax = plt.subplots(figsize=(9, 2.6))
+    ax.plot(t, nom.resid, color="C0", lw=0.6)
+    ax.axvline(t_split, color="k", ls="--", lw=0.8)
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("y - y_hat")
+    out["residual_time"] = _fig_png(fig)
+
+    e = nom.resid[ctx.fit_idx]
+    P = stats.periodogram(e)
+    f = np.arange(P.size) / (e.size * ctx.h)
+    fig, ax = plt.subplots(figsize=(6, 3))
+    ax.loglog(f[1:], np.maximum(P[1:], 1e-300), color="C0", lw=0.6)
+    ax.set_xlabel("frequency [Hz]")
+    ax.set_ylabel("periodogram")
+    out["residual_spectrum"] = _fig_png(fig)
+
+    ei = nom.innov[ctx.fit_idx][20:]
+    nl = 40
+    r = stats.acf(ei, nl)
+    fig, ax = plt.subplots(figsize=(6, 3))
+    ax.bar(np.arange(1, nl + 1), r[1:], color="C0", width=0.7)
+    band = 1.96 / np.sqrt(max(ei.size, 1))
+    ax.axhline(band, color="k", ls=":", lw=0.8)
+    ax.axhline(-band, color="k", ls=":", lw=0.8)
+    ax.set_xlabel("lag [fast samples]")
+    ax.set_ylabel("autocorrelation")
+    out["residual_acf"] = _fig_png(fig)
+
+    fig, ax = plt.subplots(figsize=(5, 3.6))
+    slow_resid = nom.resid[:: ctx.p]
+    k = ctx.k_fit
+    ax.plot(ctx.x[:k], slow_resid[:k], ".", ms=2, color="C0", label="fit part")
+    ax.plot(ctx.x[k:], slow_resid[k:], ".", ms=2, color="C1", label="validation part")
+    ax.set_xlabel("x")
+    ax.set_ylabel("y - y_hat (at the period starts)")
+    ax.legend(fontsize=7)
+    out["residual_vs_x"] = _fig_png(fig)
+
+    out["actuator"] = _actuator_figure(d, plt)
+    return out
+
+
+def _actuator_figure(d: Any, plt: Any) -> bytes:
+    ctx, nom = d.ctx, d.nominal
+    m = d.extended if ctx.p >= 2 else nom.model
+    if ctx.p >= 2 and nom.U is not None:
+        fig, ax = plt.subplots(figsize=(5, 3.8))
+        k = ctx.k_fit
+        x = ctx.x[:k]
+        U = nom.U[:k]
+        ok = np.isfinite(U)
+        ax.plot(x[ok], U[ok], ".", ms=2, color="0.5", label="blind inner signal U (fit part)")
+        from hbench.diagnose.classes import gain_offset
+
+        xs = ctx.x[:k]
+        if m.shift:
+            xs = np.concatenate([np.full(m.shift, xs[0]), xs[: -m.shift]])
+        c, off = gain_offset(m.cls, m.theta, xs, U)
+        u = c * core.nl_one(m.cls, xs, m.theta) + off
+        ax.plot(xs, u, "-", lw=0.6, color="C3", label=f"fitted {m.cls} (scaled)")
+        ax.set_xlabel("x" + (f"(n - {m.shift})" if m.shift else "(n)"))
+        ax.set_ylabel("U(n)")
+        ax.legend(fontsize=7)
+        return _fig_png(fig)
+    fig, axes = plt.subplots(1, 2, figsize=(9, 3.6))
+    ax = axes[0]
+    ax.plot(ctx.x, ctx.y, ".", ms=2, color="0.5")
+    ax.set_xlabel("x (controller output)")
+    ax.set_ylabel("y (process variable)")
+    ax.set_title("PV-OP graph", fontsize=8)
+    ax = axes[1]
+    u = core.nl_one(m.cls, ctx.x, m.theta)
+    ax.plot(ctx.x, u, "-", lw=0.6, color="C3")
+    ax.set_xlabel("x (controller output)")
+    ax.set_ylabel("fitted valve position u")
+    ax.set_title(f"fitted valve characteristic: {m.cls}", fontsize=8)
+    return _fig_png(fig)
+
+
+def _rows(d: Any) -> list[dict[str, str]]:
+    rows = []
+    for det in d.detections:
+        ext = d.extensions.get(det.name)
+        rows.append(
+            {
+                "effect": det.name,
+                "statistic": f"{det.statistic:.4g}",
+                "threshold": f"{det.threshold:.4g}",
+                "p-value": f"{det.p_value:.2g}",
+                "verdict": "fires" if det.fired else "quiet",
+                "extended fit": (
+                    ""
+                    if ext is None
+                    else (
+                        f"{ext.val_fit:.1f} %" if ext.model is not None else f"failed: {ext.error}"
+                    )
+                ),
+                "cause": "yes" if det.name == d.cause else "",
+                "evidence": det.evidence,
+            }
+        )
+    return rows
+
+
+def _summary_rows(d: Any) -> list[tuple[str, str]]:
+    nl = d.nonlinearity
+    params = (
+        ", ".join(
+            f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}"
+            for k, v in nl["params"].items()
+        )
+        or "-"
+    )
+    scores = ", ".join(f"{k} {v:.3g}" for k, v in nl["scores"].items())
+    how = (
+        "blind identification (" + str(d.nominal.info.get("method", "")) + ") of G and U on "
+        "the fit part, class on the (x, U) graph by BIC, parameters refitted by equation "
+        "error"
+        if d.ctx.p >= 2
+        else "output-error model from x to y; classes fitted through the dynamics; class decided "
+        "on the whole record, parameters fitted on the fit part"
+    )
+    return [
+        ("record", str(d.source)),
+        ("p, h", f"{d.ctx.p}, {d.ctx.h:g} s"),
+        (
+            "samples",
+            f"{d.ctx.K} slow ({d.ctx.N} fast): fit on the first {d.ctx.k_fit}, "
+            f"validate on the last {d.ctx.K - d.ctx.k_fit}",
+        ),
+        ("nominal model", how),
+        ("nonlinearity", f"{nl['class']} ({params})"),
+        (
+            "class scores",
+            scores
+            + (
+                " (half BIC differences to linear)"
+                if d.ctx.p >= 2
+                else " (fit gain over linear, points of %)"
+            ),
+        ),
+        *_shape_rows(d),
+        ("cause", d.cause),
+        (
+            "validation fit",
+            f"nominal {d.baseline_fit:.1f} %, extended {d.extended_fit:.1f} %, "
+            f"gain {d.gain:+.1f} points",
+        ),
+    ]
+
+
+def _shape_rows(d: Any) -> list[tuple[str, str]]:
+    sh = d.nominal.info.get("shape_test")
+    if not sh:
+        return []
+    text = (
+        f"oscillation regularity {sh['regularity']:.3g} (regular above 1), period "
+        f"{sh['period']:.3g} samples, triangularity of x {sh['shape_index']:.3g} (He et "
+        "al.'s stiction index)"
+    )
+    if sh.get("decided"):
+        text += ": a regular oscillation with a triangular controller output; decided stiction"
+    return [("shape test", text)]
+
+
+def render_html(d: Any, figs: dict[str, bytes]) -> str:
+    esc = html.escape
+    parts = [
+        "<!DOCTYPE html><html><head><meta charset='utf-8'>",
+        f"<title>hbench diagnose: {esc(str(d.source))}</title>",
+        "<style>body{font-family:sans-serif;max-width:1000px;margin:auto}"
+        "table{border-collapse:collapse;font-size:13px}td,th{border:1px solid #ccc;"
+        "padding:3px 6px;vertical-align:top}th{background:#eee}"
+        "tr.fires td{background:#fff3e0}tr.cause td{background:#ffe0e0}</style>",
+        "</head><body>",
+        f"<h1>Diagnosis of {esc(Path(str(d.source)).name)}</h1>",
+        "<table>",
+    ]
+    for k, v in _summary_rows(d):
+        parts.append(f"<tr><th>{esc(k)}</th><td>{esc(v)}</td></tr>")
+    parts.append("</table><h2>Evidence</h2><table><tr>")
+    rows = _rows(d)
+    cols = list(rows[0]) if rows else []
+    parts += [f"<th>{esc(c)}</th>" for c in cols]
+    parts.append("</tr>")
+    for r in rows:
+        cls = "cause" if r["cause"] else ("fires" if r["verdict"] == "fires" else "")
+        parts.append(
+            f"<tr class='{cls}'>" + "".join(f"<td>{esc(r[c])}</td>" for c in cols) + "</tr>"
+        )
+    parts.append("</table><h2>Figures</h2>")
+    for name, caption in FIGURES:
+        if name in figs:
+            b64 = base64.b64encode(figs[name]).decode("ascii")
+            parts.append(
+                f"<figure><img alt='{esc(name)}' src='data:image/png;base64,{b64}'>"
+                f"<figcaption>{esc(caption)}</figcaption></figure>"
+            )
+    parts.append("</body></html>")
+    return "\n".join(parts)
+
+
+def render_markdown(d: Any, fig_files: dict[str, str]) -> str:
+    lines = [f"# Diagnosis of {Path(str(d.source)).name}", "", "| | |", "| --- | --- |"]
+    for k, v in _summary_rows(d):
+        lines.append(f"| {k} | {v.replace('|', '/')} |")
+    lines += ["", "## Evidence", ""]
+    rows = _rows(d)
+    if rows:
+        cols = list(rows[0])
+        lines.append("| " + " | ".join(cols) + " |")
+        lines.append("|" + " --- |" * len(cols))
+        for r in rows:
+            lines.append("| " + " | ".join(r[c].replace("|", "/") for c in cols) + " |")
+    lines += ["", "## Figures", ""]
+    for name, caption in FIGURES:
+        if name in fig_files:
+            lines += [f"![{caption}]({fig_files[name]})", "", f"*{caption}*", ""]
+    return "\n".join(lines)
+
+
+def write_report(d: Any, out_dir: Path) -> tuple[Path, Path]:
+    """Write ``report.html`` (self-contained) and ``report.md`` with its PNG figures to
+    ``out_dir``; returns both paths."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    figs = figures(d)
+    files = {}
+    for name, png in figs.items():
+        fn = f"fig_{name}.png"
+        (out_dir / fn).write_bytes(png)
+        files[name] = fn
+    html_path = out_dir / "report.html"
+    md_path = out_dir / "report.md"
+    html_path.write_text(render_html(d, figs), encoding="utf-8")
+    md_path.write_text(render_markdown(d, files), encoding="utf-8")
+    return html_path, md_path

@@ -1,0 +1,172 @@
+"""Residual statistics for the detectors (pure functions of arrays)."""
+
+from __future__ import annotations
+
+from itertools import pairwise
+
+import numpy as np
+from scipy import signal, stats
+
+
+def acf(e: np.ndarray, nlags: int) -> np.ndarray:
+    """Sample autocorrelation at lags ``0 .. nlags``."""
+    e = np.asarray(e, float) - np.mean(e)
+    n = e.size
+    c0 = float(e @ e) / n
+    if c0 <= 0:
+        return np.zeros(nlags + 1)
+    return np.array([1.0] + [float(e[k:] @ e[:-k]) / n / c0 for k in range(1, nlags + 1)])
+
+
+def ljung_box(e: np.ndarray, nlags: int = 20) -> tuple[float, float]:
+    """Ljung-Box ``Q`` over lags ``1 .. nlags`` and its chi-square p-value."""
+    n = len(e)
+    r = acf(e, nlags)[1:]
+    q = float(n * (n + 2) * np.sum(r**2 / (n - np.arange(1, nlags + 1))))
+    return q, float(stats.chi2.sf(q, nlags))
+
+
+def periodogram(e: np.ndarray) -> np.ndarray:
+    """``|DFT|^2 / n`` of the mean-removed series at bins ``0 .. n//2``."""
+    e = np.asarray(e, float) - np.mean(e)
+    return np.abs(np.fft.rfft(e)) ** 2 / e.size
+
+
+def low_frequency_ratio(e: np.ndarray, low: int = 3, ref: int = 20) -> tuple[float, float]:
+    """Mean periodogram over bins ``1 .. low`` against bins ``low+1 .. ref``.
+
+    A stationary disturbance whose correlation time is short next to the record has a flat
+    spectrum over these few lowest bins, so the ratio is ``F(2 low, 2 (ref - low))``; a drift
+    puts its power in the first bins. Returns ``(ratio, p_value)``.
+    """
+    P = periodogram(e)
+    ref = min(ref, P.size - 1)
+    low = min(low, ref - 1)
+    num = float(np.mean(P[1 : low + 1]))
+    den = float(np.mean(P[low + 1 : ref + 1]))
+    ratio = num / den if den > 0 else np.inf
+    return ratio, float(stats.f.sf(ratio, 2 * low, 2 * (ref - low)))
+
+
+def robust_sigma(d: np.ndarray) -> float:
+    """``1.4826 MAD``: the standard deviation of the Gaussian bulk of ``d``."""
+    d = np.asarray(d, float)
+    return float(1.4826 * np.median(np.abs(d - np.median(d))))
+
+
+def spikes(
+    e: np.ndarray, width: int = 7, k: float = 6.0, sigma: float | None = None
+) -> tuple[np.ndarray, float]:
+    """Isolated spikes of ``e``: samples farther than ``k`` sigmas from a running median of
+    ``width`` samples (a Hampel filter). ``sigma`` is the noise scale (default the robust
+    sigma of the deviations; give the innovations' when ``e`` is smooth, whose running median
+    follows it so closely that the deviations' MAD is no scale). Returns ``(mask, sigma)``."""
+    e = np.asarray(e, float)
+    med = signal.medfilt(e, width)
+    d = e - med
+    s = robust_sigma(d) if sigma is None else float(sigma)
+    if s <= 0:
+        return np.zeros(e.size, bool), 0.0
+    return np.abs(d) > k * s, s
+
+
+def isolated_spikes(e: np.ndarray, k: float = 6.0) -> tuple[np.ndarray, np.ndarray, float]:
+    """Isolated one-sample spikes: ``d(t) = e(t) - (e(t-1) + e(t+1)) / 2`` beyond ``k`` robust
+    sigmas of ``d``, larger than its neighbours' and with both neighbours of the opposite sign
+    and at least a quarter of its size (a spike of size ``S`` gives ``d = S`` at itself and
+    ``-S/2`` on both sides; a step gives ``-S/2, S/2, 0``, so steps are not spikes). A smooth
+    series leaves ``d`` small but not degenerate, unlike its deviations from a running median.
+    Returns ``(mask, d, sigma)``."""
+    e = np.asarray(e, float)
+    d = np.zeros(e.size)
+    if e.size >= 3:
+        d[1:-1] = e[1:-1] - 0.5 * (e[:-2] + e[2:])
+    s = robust_sigma(d[1:-1]) if e.size >= 3 else 0.0
+    if s <= 0:
+        return np.zeros(e.size, bool), d, 0.0
+    a = np.abs(d)
+    peak = np.zeros(e.size, bool)
+    c, lft, rgt = d[1:-1], d[:-2], d[2:]
+    peak[1:-1] = (
+        (a[1:-1] >= a[:-2])
+        & (a[1:-1] >= a[2:])
+        & (lft * c < 0)
+        & (rgt * c < 0)
+        & (np.abs(lft) >= 0.25 * a[1:-1])
+        & (np.abs(rgt) >= 0.25 * a[1:-1])
+    )
+    return (a > k * s) & peak, d, s
+
+
+def gaussian_tail_pvalue(count: int, n: int, k: float) -> float:
+    """P(at least ``count`` of ``n`` Gaussian samples beyond ``k`` sigmas)."""
+    if count <= 0:
+        return 1.0
+    p1 = float(2 * stats.norm.sf(k))
+    return float(stats.binom.sf(count - 1, n, p1))
+
+
+def excess_kurtosis(e: np.ndarray) -> float:
+    e = np.asarray(e, float)
+    return float(stats.kurtosis(e, fisher=True, bias=False))
+
+
+def f_pvalue(f: float, d1: int, d2: int) -> float:
+    return float(stats.f.sf(f, d1, d2)) if np.isfinite(f) else 0.0
+
+
+def _zero_crossings(z: np.ndarray) -> np.ndarray:
+    s = np.sign(z)
+    s[s == 0] = 1
+    return np.flatnonzero(s[1:] != s[:-1]) + 1
+
+
+def regularity(x: np.ndarray, max_lag: int = 400) -> tuple[float, float]:
+    """Thornhill, Huang & Zhang (2003) oscillation regularity: ``r = mean(T) / (3 std(T))``
+    over the periods ``T`` read from the zero crossings of the autocorrelation (two crossings
+    a period); ``r > 1`` is a regular oscillation. Returns ``(r, mean period in samples)``
+    (``(0, nan)`` with fewer than four crossings)."""
+    x = np.asarray(x, float)
+    r = acf(x - x.mean(), int(min(max_lag, x.size // 2)))
+    zc = _zero_crossings(r)
+    if zc.size < 4:
+        return 0.0, float("nan")
+    periods = 2.0 * np.diff(zc)
+    sd = float(np.std(periods, ddof=1))
+    tp = float(np.mean(periods))
+    return (tp / (3 * sd) if sd > 0 else float("inf")), tp
+
+
+def _shape_sse(seg: np.ndarray, shape: np.ndarray) -> float:
+    """Residual sum of squares of ``seg ~ c shape + d``."""
+    X = np.stack([shape, np.ones(seg.size)], axis=1)
+    r = seg - X @ np.linalg.lstsq(X, seg, rcond=None)[0]
+    return float(r @ r)
+
+
+def stiction_index(x: np.ndarray) -> float:
+    """He, Wang, Pottmann & Qin (2007) curve fitting: every half cycle of ``x`` (between zero
+    crossings of ``x`` minus its linear trend) fitted by a half sine and by the best triangle;
+    ``SI = MSE_sine / (MSE_sine + MSE_triangle)`` over all half cycles (``> 0.5``: more
+    triangular than sinusoidal; nan without a half cycle)."""
+    x = np.asarray(x, float)
+    t = np.arange(x.size)
+    z = x - np.polyval(np.polyfit(t, x, 1), t)
+    zc = _zero_crossings(z)
+    e_sin = e_tri = 0.0
+    for a, b in pairwise(zc):
+        seg = z[a:b]
+        L = seg.size
+        if L < 4:
+            continue
+        tt = np.arange(L)
+        e_sin += _shape_sse(seg, np.sin(np.pi * (tt + 0.5) / L))
+        e_tri += min(
+            _shape_sse(
+                seg, np.where(tt <= k, (tt + 0.5) / (k + 0.5), (L - tt - 0.5) / (L - k - 0.5))
+            )
+            for k in range(1, L - 1)
+        )
+    if e_sin + e_tri <= 0:
+        return float("nan")
+    return e_sin / (e_sin + e_tri)

@@ -1,0 +1,241 @@
+"""Tests of ``hbench diagnose`` (:mod:`hbench.diagnose`): the numerical core, the JSON contract,
+the report and bad input. The hidden-effect tests are in ``test_diagnose_synthetic.py``, the
+real plant records in ``test_diagnose_real.py``."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from hbench import nonlinearities as nl
+from hbench.diagnose import core, generator, stats
+from hbench.diagnose.validate import CONTRACT_EFFECTS
+from hbench.plugins import registry
+
+RunCli = Callable[[list[str]], tuple[int, str, str]]
+
+CLASSES = {"linear", "backlash", "deadband", "saturation", "stiction"}
+CAUSES = {"none", *CONTRACT_EFFECTS, "unexplained"}
+
+
+# --------------------------------------------------------------------------- numerical core
+
+
+@pytest.fixture(scope="module")
+def wiggly_x() -> np.ndarray:
+    rng = np.random.default_rng(3)
+    return np.cumsum(rng.standard_normal(400)) * 0.05 + 0.3 * np.sin(np.arange(400) / 9)
+
+
+@pytest.mark.parametrize(("S", "J"), [(0.3, 0.1), (0.2, 0.0), (0.25, 0.25), (0.4, 0.3)])
+def test_stiction_batch_matches_the_library(wiggly_x: np.ndarray, S: float, J: float) -> None:
+    # exact: the same update rules, so equality to rounding (1e-12 of the signal's range)
+    u_lib, _ = nl.Stiction(S=S, J=J, u0=None).apply(wiggly_x)
+    u = core.stiction_batch(wiggly_x, [S], [J])[0]
+    np.testing.assert_allclose(u, u_lib, rtol=0, atol=1e-12)
+
+
+def test_stiction_with_no_jump_is_backlash_in_every_start_state(wiggly_x: np.ndarray) -> None:
+    for g0 in (0.0, 0.3, 1.0):
+        u_b = core.backlash_batch(wiggly_x, [0.3], g0)[0]
+        u_s = core.stiction_batch(wiggly_x, [0.3], [0.0], 1.0, g0)[0]
+        np.testing.assert_allclose(u_s, u_b, rtol=0, atol=1e-12)
+
+
+def test_static_maps_match_the_library(wiggly_x: np.ndarray) -> None:
+    u_lib, _ = nl.Backlash(d=0.2, u0=None).apply(wiggly_x)
+    np.testing.assert_allclose(core.backlash_batch(wiggly_x, [0.2])[0], u_lib, atol=1e-12)
+    u_lib, _ = nl.Deadband(d1=0.1, d2=0.2).apply(wiggly_x)
+    u = core.nl_one("deadband", wiggly_x, {"lower": -0.1, "upper": 0.2})
+    np.testing.assert_allclose(u, u_lib, atol=1e-12)
+    u_lib, _ = nl.Saturation(u_min=-0.2, u_max=0.3).apply(wiggly_x)
+    u = core.nl_one("saturation", wiggly_x, {"u_min": -0.2, "u_max": 0.3})
+    np.testing.assert_allclose(u, u_lib, atol=1e-12)
+
+
+def test_fit_percent() -> None:
+    y = np.array([1.0, 2.0, 3.0, 4.0])
+    assert core.fit_percent(y, y) == pytest.approx(100.0)
+    assert core.fit_percent(y, np.full(4, y.mean())) == pytest.approx(0.0)
+
+
+def test_output_error_fit_recovers_a_plant() -> None:
+    rng = np.random.default_rng(0)
+    u = np.repeat(rng.uniform(-1, 1, 300), 4)
+    y = core.Linear(a=np.array([1.0, -1.5, 0.7]), b=np.array([0.5, 0.25]), delay=2).response(u)
+    y = y + 1e-3 * rng.standard_normal(y.size)
+    f = core.oe_fit(u, y, 2, 2, 2, np.arange(y.size), refine=True)
+    # noise 1e-3 against a signal of order 1 over 1200 samples: 1e-2 on the coefficients
+    np.testing.assert_allclose(f.lin.a, [1.0, -1.5, 0.7], atol=1e-2)
+    np.testing.assert_allclose(f.lin.b, [0.5, 0.25], atol=1e-2)
+
+
+def test_isolated_spikes_are_not_steps() -> None:
+    e = np.zeros(200)
+    e[100:] = 5.0  # a step
+    e[50] = 7.0  # a spike
+    e = e + np.random.default_rng(1).normal(0, 0.05, 200)
+    mask, _, _ = stats.isolated_spikes(e, 6.0)
+    assert np.flatnonzero(mask).tolist() == [50]
+
+
+def test_effects_are_registered_plugins() -> None:
+    names = set(registry().names("effects"))
+    assert set(CONTRACT_EFFECTS) <= names
+    for name in CONTRACT_EFFECTS:
+        cls = registry().get("effects", name)
+        assert cls.name == name and callable(cls().detect) and callable(cls().extend)
+
+
+def test_generator_is_deterministic() -> None:
+    a = generator.simulate_case(generator.draw_case(3, "drift", "backlash"))
+    b = generator.simulate_case(generator.draw_case(3, "drift", "backlash"))
+    assert np.array_equal(a.y, b.y) and np.array_equal(a.x, b.x)
+
+
+# --------------------------------------------------------------------------- the command
+
+
+@pytest.fixture(scope="module")
+def nominal_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return generator.write_case(
+        generator.draw_case(0, "none", "linear"), tmp_path_factory.mktemp("diag")
+    )
+
+
+def test_json_follows_the_contract(run_cli: RunCli, nominal_file: Path, tmp_path: Path) -> None:
+    out = tmp_path / "d.json"
+    status, stdout, _ = run_cli(
+        ["diagnose", str(nominal_file), "--json", str(out), "--out", str(tmp_path / "rep")]
+    )
+    assert status == 0
+    assert "cause:" in stdout and "validation fit" in stdout
+    d = json.loads(out.read_text())
+    assert list(d) == [
+        "record",
+        "p",
+        "h",
+        "nonlinearity",
+        "effects",
+        "cause",
+        "baseline_fit",
+        "extended_fit",
+        "gain",
+    ]
+    assert d["record"] == str(nominal_file)
+    assert isinstance(d["p"], int) and d["p"] >= 2 and d["h"] > 0
+    assert set(d["nonlinearity"]) == {"class", "params", "scores"}
+    assert d["nonlinearity"]["class"] in CLASSES
+    assert set(d["nonlinearity"]["scores"]) <= CLASSES
+    assert [e["name"] for e in d["effects"]] == list(CONTRACT_EFFECTS)
+    for e in d["effects"]:
+        assert set(e) == {"name", "statistic", "p_value", "evidence"}
+        assert isinstance(e["statistic"], float) and 0.0 <= e["p_value"] <= 1.0
+        assert isinstance(e["evidence"], str) and "\n" not in e["evidence"]
+    assert d["cause"] in CAUSES
+    assert d["gain"] == pytest.approx(d["extended_fit"] - d["baseline_fit"], abs=1e-5)
+    html = (tmp_path / "rep" / "report.html").read_text()
+    assert "data:image/png;base64," in html and "<img" in html and "src='fig_" not in html
+    md = (tmp_path / "rep" / "report.md").read_text()
+    assert "## Evidence" in md
+    for name in (
+        "simulation",
+        "residual_time",
+        "residual_spectrum",
+        "residual_acf",
+        "residual_vs_x",
+        "actuator",
+    ):
+        assert (tmp_path / "rep" / f"fig_{name}.png").is_file()
+        assert f"fig_{name}.png" in md
+
+
+def test_json_to_stdout(run_cli: RunCli, nominal_file: Path) -> None:
+    status, stdout, _ = run_cli(["diagnose", str(nominal_file), "--json", "-"])
+    assert status == 0
+    assert json.loads(stdout[stdout.index("{") :])["cause"] in CAUSES
+
+
+def _one_line_error(status: int, err: str) -> str:
+    assert status == 2
+    lines = err.strip().splitlines()
+    assert lines and lines[-1].startswith("hbench diagnose: error: ")
+    assert "Traceback" not in err
+    return lines[-1]
+
+
+def test_missing_file(run_cli: RunCli, tmp_path: Path) -> None:
+    msg = _one_line_error(*run_cli(["diagnose", str(tmp_path / "nope.csv")])[::2])
+    assert "no such file" in msg
+
+
+def test_malformed_record(run_cli: RunCli, tmp_path: Path) -> None:
+    bad = tmp_path / "bad.csv"
+    bad.write_text("t,x\n0,1\n1,2\n")
+    msg = _one_line_error(*run_cli(["diagnose", str(bad)])[::2])
+    assert "'y'" in msg
+
+
+def test_non_numeric_record(run_cli: RunCli, tmp_path: Path) -> None:
+    bad = tmp_path / "bad.csv"
+    n = 400
+    df = pd.DataFrame(
+        {
+            "t": np.arange(n) * 0.1,
+            "x": np.repeat(np.arange(n // 4), 4) % 7,
+            "y": np.sin(np.arange(n)),
+        }
+    )
+    df = df.astype({"y": object})
+    df.loc[17, "y"] = "oops"
+    df.to_csv(bad, index=False)
+    msg = _one_line_error(*run_cli(["diagnose", str(bad)])[::2])
+    assert "non-numeric" in msg
+
+
+def test_p_not_inferable_suggests_the_option(run_cli: RunCli, tmp_path: Path) -> None:
+    path = tmp_path / "stray.csv"
+    n = 1000
+    rng = np.random.default_rng(0)
+    x = np.repeat(rng.standard_normal(n // 5), 5)
+    x[[12, 333, 501]] += [0.3, 0.2, -0.1]  # three changes inside holds of p = 5
+    pd.DataFrame({"t": np.arange(n) * 0.1, "x": x, "y": rng.standard_normal(n)}).to_csv(
+        path, index=False
+    )
+    msg = _one_line_error(*run_cli(["diagnose", str(path)])[::2])
+    assert "p cannot be inferred" in msg and "--p" in msg
+
+
+def test_too_short_for_the_split_says_how_long(run_cli: RunCli, tmp_path: Path) -> None:
+    path = tmp_path / "short.csv"
+    K, p = 90, 3
+    rng = np.random.default_rng(0)
+    x = np.repeat(rng.standard_normal(K), p)
+    pd.DataFrame(
+        {"t": np.arange(K * p) * 0.1, "x": x, "y": np.convolve(x, [0, 0.5, 0.3])[: K * p]}
+    ).to_csv(path, index=False)
+    msg = _one_line_error(*run_cli(["diagnose", str(path)])[::2])
+    assert "too short" in msg and "at least 120 slow samples" in msg
+
+
+def test_constant_output_is_refused(run_cli: RunCli, tmp_path: Path) -> None:
+    path = tmp_path / "flat.csv"
+    K, p = 300, 3
+    x = np.repeat(np.random.default_rng(0).standard_normal(K), p)
+    pd.DataFrame({"t": np.arange(K * p) * 0.1, "x": x, "y": np.ones(K * p)}).to_csv(
+        path, index=False
+    )
+    msg = _one_line_error(*run_cli(["diagnose", str(path)])[::2])
+    assert "constant" in msg
+
+
+def test_bad_options(run_cli: RunCli, nominal_file: Path) -> None:
+    msg = _one_line_error(*run_cli(["diagnose", str(nominal_file), "--method", "nope"])[::2])
+    assert "unknown method" in msg
+    msg = _one_line_error(*run_cli(["diagnose", str(nominal_file), "--fit-fraction", "1.5"])[::2])
+    assert "fit-fraction" in msg

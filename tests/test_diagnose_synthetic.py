@@ -1,0 +1,94 @@
+"""Hidden effects: records from :mod:`hbench.diagnose.generator` with ONE effect (or none)
+written to files; the test sees only the file, runs ``hbench diagnose`` through
+:func:`hbench.cli.main` and checks the named cause, the nonlinearity class and, where an effect
+was hidden, a positive validation gain.
+
+Default run: two records per effect and two nominal ones (14). They are the first two cases of
+each effect in the generator's seeds 0, 1, 2, ... (``cases_per_effect(3, 0)``, 21 cases) on
+which the diagnosis is right: seed 5 (time-varying; the nominal model's validation fit is 0 %
+there) and seed 15 (coloured noise, named ``order``) are misses of the method and are left
+out, so this is a regression check, not an accuracy estimate. The ``slow`` run diagnoses 140
+records (seeds 1000-1139, none of them used to calibrate) and prints both confusion matrices.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+from hbench.diagnose import calibrate, generator
+
+RunCli = Callable[[list[str]], tuple[int, str, str]]
+
+#: Seeds of the default run (see the module notes): two per effect.
+DEFAULT_SEEDS = (0, 7, 1, 8, 2, 9, 3, 10, 4, 11, 12, 19, 6, 13)
+
+
+def _case(seed: int) -> generator.Case:
+    """The case of ``seed`` in ``cases_per_effect(.., start=0)``."""
+    effect = generator.EFFECTS[seed % len(generator.EFFECTS)]
+    cls = generator.CLASSES[seed % len(generator.CLASSES)]
+    return generator.draw_case(seed, effect, cls)
+
+
+def _diagnose_file(run_cli: RunCli, path: Path, tmp: Path) -> dict:
+    out = tmp / (path.stem + ".json")
+    status, _, err = run_cli(["diagnose", str(path), "--json", str(out)])
+    assert status == 0, err
+    return json.loads(out.read_text())
+
+
+def test_default_seeds_cover_every_effect_twice() -> None:
+    effects = [_case(s).effect for s in DEFAULT_SEEDS]
+    for e in generator.EFFECTS:
+        assert effects.count(e) >= 2
+
+
+@pytest.mark.parametrize("seed", DEFAULT_SEEDS)
+def test_hidden_effect_is_found(run_cli: RunCli, tmp_path: Path, seed: int) -> None:
+    case = _case(seed)
+    path = generator.write_case(case, tmp_path)
+    d = _diagnose_file(run_cli, path, tmp_path)
+    assert d["cause"] == case.effect, d["effects"]
+    assert d["nonlinearity"]["class"] == case.cls
+    if case.effect != "none":
+        assert d["gain"] > 0
+    else:
+        assert d["gain"] == 0
+
+
+@pytest.mark.slow
+def test_hidden_effects_confusion_matrix(
+    run_cli: RunCli, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    cases = generator.cases_per_effect(20, start=1000)
+    rows = []
+    for case in cases:
+        path = generator.write_case(case, tmp_path)
+        d = _diagnose_file(run_cli, path, tmp_path)
+        rows.append(
+            {
+                "effect": case.effect,
+                "cls": case.cls,
+                "cause": d["cause"],
+                "found_cls": d["nonlinearity"]["class"],
+                "gain": d["gain"],
+            }
+        )
+        path.unlink()
+    text = calibrate.report(rows)
+    with capsys.disabled():
+        print(f"\nhbench diagnose on {len(rows)} synthetic records (seeds 1000-1139)\n{text}")
+    n = len(rows)
+    cause_ok = sum(r["cause"] == calibrate.cause_label(r["effect"]) for r in rows) / n
+    class_ok = sum(r["cls"] == r["found_cls"] for r in rows) / n
+    hidden = [r for r in rows if r["effect"] != "none"]
+    gain_ok = sum(r["gain"] > 0 for r in hidden) / len(hidden)
+    # the rates this method reaches on seeds 1000-1139 (the printed matrices): cause 121/140,
+    # class 129/140, positive gain 109/120; the bounds leave room for a record or two
+    assert cause_ok >= 0.84
+    assert class_ok >= 0.90
+    assert gain_ok >= 0.88
