@@ -20,6 +20,7 @@ import pandas as pd
 from hbench.identifiers import Estimate, Identifier, IdentifyOptions, identify
 from hbench.metrics import fitness
 from hbench.records import Record, Truth
+from hbench.schema import ID_COLUMNS, TIDY_COLUMNS  # noqa: F401 - re-exported
 from hbench.simulate import Scenario, simulate
 
 #: Quantities written per run and method (besides the parameters a1.., b2..).
@@ -34,20 +35,6 @@ QUANTITIES = (
     "identifiable",
     "seconds",
 )
-#: Identifying columns of a tidy row, in order.
-ID_COLUMNS = (
-    "cell",
-    "method",
-    "nonlinearity",
-    "plant",
-    "p",
-    "delay",
-    "sigma2",
-    "snr_target",
-    "run",
-    "seed",
-)
-TIDY_COLUMNS = (*ID_COLUMNS, "quantity", "value", "true", "snr", "status", "error")
 
 
 @dataclass

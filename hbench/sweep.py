@@ -38,6 +38,7 @@ from pathlib import Path
 from typing import Any
 
 from hbench.errors import InputError
+from hbench.schema import TIDY_COLUMNS
 
 EXAMPLE = (
     "hbench sweep -m noise.snr=2,5,20 scenario.p=3,5,8 plant.delay=0,2,7 "
@@ -578,25 +579,7 @@ def failed_rows(data: dict[str, Any], scenario: Any, seq: Any, cell: str, messag
 
 
 #: Tidy columns of ``rows.parquet``: the runner's plus ``job`` (the run id of the job).
-ROW_COLUMNS = (
-    "cell",
-    "method",
-    "nonlinearity",
-    "plant",
-    "p",
-    "delay",
-    "sigma2",
-    "snr_target",
-    "run",
-    "seed",
-    "quantity",
-    "value",
-    "true",
-    "snr",
-    "status",
-    "error",
-    "job",
-)
+ROW_COLUMNS = (*TIDY_COLUMNS, "job")
 _INT = ("p", "delay", "run")
 _FLOAT = ("sigma2", "snr_target", "value", "true", "snr")
 #: Deterministic order of rows (aggregation sums in this order: bit-identical tables).

@@ -15,6 +15,33 @@ from hbench.simulate import simulate
 
 TRUE_STRUCTURE = IdentifyOptions(na=2, tau=3, nb=2)
 
+#: The contract's columns (shared/docs/contract.md), written out here rather than imported from
+#: hbench so that a change in hbench's constants cannot silently change what the tests demand.
+FITNESS_COLUMNS = [
+    "method",
+    "nonlinearity",
+    "p",
+    "delay",
+    "sigma2",
+    "snr_mean",
+    "n",
+    "fitness_mean",
+    "fitness_std",
+]
+BIAS_COLUMNS = [
+    "method",
+    "nonlinearity",
+    "p",
+    "delay",
+    "sigma2",
+    "parameter",
+    "true",
+    "mean",
+    "bias",
+    "std",
+    "n",
+]
+
 
 def paper_spec(**overrides: Any) -> dict[str, Any]:
     """The paper's example spec with dotted overrides (``noise__sigma2=0`` style keys)."""

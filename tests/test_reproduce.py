@@ -14,6 +14,7 @@ import pytest
 from hbench import cli
 from hbench import reproduce as rp
 from hbench.runner import TIDY_COLUMNS
+from tests.helpers import BIAS_COLUMNS, FITNESS_COLUMNS
 
 ROOT = Path(__file__).resolve().parents[1]
 CONTRACT_COLUMNS = [
@@ -26,30 +27,6 @@ CONTRACT_COLUMNS = [
     "ours",
     "ours_std",
     "z",
-]
-FITNESS_COLUMNS = [
-    "method",
-    "nonlinearity",
-    "p",
-    "delay",
-    "sigma2",
-    "snr_mean",
-    "n",
-    "fitness_mean",
-    "fitness_std",
-]
-BIAS_COLUMNS = [
-    "method",
-    "nonlinearity",
-    "p",
-    "delay",
-    "sigma2",
-    "parameter",
-    "true",
-    "mean",
-    "bias",
-    "std",
-    "n",
 ]
 # Tables 1 (2 methods x 5 na x 5 tau), 2 (5 phases), 4 (6 levels x (SNR + 2 methods x 3
 # parameters)), 5 (6 levels x 4 columns)

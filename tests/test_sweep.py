@@ -28,36 +28,13 @@ from hbench.hookspecs import hookimpl
 from hbench.identifiers import Identifier
 from hbench.plugins import register_module, registry, unregister_module
 from hbench.sweep import DONE, EXAMPLE, ROW_COLUMNS, ROWS, validate
+from tests.helpers import BIAS_COLUMNS, FITNESS_COLUMNS
 
 pytestmark = pytest.mark.filterwarnings(f"ignore:{config.SCHEMA_NOTE}:UserWarning")
 
 RunCli = Callable[[Sequence[str]], tuple[int, str, str]]
 #: Small and fast: 5 runs of 120 s records.
 SMALL = ("runs=5", "scenario.duration=120")
-FITNESS_COLUMNS = [
-    "method",
-    "nonlinearity",
-    "p",
-    "delay",
-    "sigma2",
-    "snr_mean",
-    "n",
-    "fitness_mean",
-    "fitness_std",
-]
-BIAS_COLUMNS = [
-    "method",
-    "nonlinearity",
-    "p",
-    "delay",
-    "sigma2",
-    "parameter",
-    "true",
-    "mean",
-    "bias",
-    "std",
-    "n",
-]
 
 
 def sweep(
