@@ -464,6 +464,36 @@ def fit_output(
     )
 
 
+def _partitioned_ls(
+    Z: list[np.ndarray], Sh: np.ndarray, y: np.ndarray, C: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Least squares for C candidates at once: regressors ``[Z_1 .. Z_nb | Sh]``.
+
+    ``Z[i]`` (C, n) differ by candidate, ``Sh`` (n, ns) is shared, ``y`` (n,) is the target.
+    Normal equations assembled blockwise (shared block once), lightly regularised (1e-12 of the
+    trace), solved per candidate. Returns ``(theta (C, nb + ns), rss (C,))`` with
+    ``rss = y'y - 2 theta'g + theta'G theta`` clipped at 0.
+    """
+    nb = len(Z)
+    m = nb + Sh.shape[1]
+    G = np.empty((C, m, m))
+    g = np.empty((C, m))
+    for i1 in range(nb):
+        g[:, i1] = Z[i1] @ y
+        G[:, i1, nb:] = Z[i1] @ Sh
+        G[:, nb:, i1] = G[:, i1, nb:]
+        for i2 in range(i1, nb):
+            G[:, i1, i2] = G[:, i2, i1] = np.einsum("cn,cn->c", Z[i1], Z[i2])
+    G[:, nb:, nb:] = Sh.T @ Sh
+    g[:, nb:] = Sh.T @ y
+    G = G + 1e-12 * (np.trace(G, axis1=1, axis2=2) + 1e-300)[:, None, None] * np.eye(m)
+    th = np.linalg.solve(G, g[..., None])[..., 0]
+    rss = np.maximum(
+        y @ y - 2 * np.einsum("ci,ci->c", th, g) + np.einsum("ci,cij,cj->c", th, G, th), 0.0
+    )
+    return th, rss
+
+
 def batch_fixed_a(
     u: np.ndarray,
     y: np.ndarray,
@@ -504,29 +534,12 @@ def batch_fixed_a(
         if prefilter is not None and fb.shape[1]:
             fb = signal.lfilter(prefilter, [1.0], fb, axis=0)
         Sh = np.hstack([np.ones((N, 1)), fb])[idx] * sw[:, None]  # (n, ns)
-        ns = Sh.shape[1]
         Z = []
         for lag in range(d + 1, d + 1 + nb):
             src = idx - lag
             col = np.where(src[None, :] >= 0, z[:, np.clip(src, 0, None)], 0.0)
             Z.append(col * sw[None, :])
-        m = nb + ns
-        G = np.empty((C, m, m))
-        g = np.empty((C, m))
-        for i1 in range(nb):
-            g[:, i1] = Z[i1] @ yw
-            G[:, i1, nb:] = Z[i1] @ Sh
-            G[:, nb:, i1] = G[:, i1, nb:]
-            for i2 in range(i1, nb):
-                G[:, i1, i2] = G[:, i2, i1] = np.einsum("cn,cn->c", Z[i1], Z[i2])
-        G[:, nb:, nb:] = Sh.T @ Sh
-        g[:, nb:] = Sh.T @ yw
-        G = G + 1e-12 * (np.trace(G, axis1=1, axis2=2) + 1e-300)[:, None, None] * np.eye(m)
-        th = np.linalg.solve(G, g[..., None])[..., 0]
-        # rss = y'y - 2 th'g + th'G th  (weighted)
-        rss[:, j] = np.maximum(
-            yw @ yw - 2 * np.einsum("ci,ci->c", th, g) + np.einsum("ci,cij,cj->c", th, G, th), 0.0
-        )
+        th, rss[:, j] = _partitioned_ls(Z, Sh, yw, C)
         coef[:, j] = th[:, : nb + 1]
     return rss, coef, delays
 
@@ -592,23 +605,7 @@ def batch_arx(
     for lag in range(delay + 1, delay + 1 + nb):
         src = idx - lag
         Z.append(np.where(src[None, :] >= 0, u[:, np.clip(src, 0, None)], 0.0))
-    ns = Sh.shape[1]
-    m = nb + ns
-    G = np.empty((C, m, m))
-    g = np.empty((C, m))
-    for i1 in range(nb):
-        g[:, i1] = Z[i1] @ yi
-        G[:, i1, nb:] = Z[i1] @ Sh
-        G[:, nb:, i1] = G[:, i1, nb:]
-        for i2 in range(i1, nb):
-            G[:, i1, i2] = G[:, i2, i1] = np.einsum("cn,cn->c", Z[i1], Z[i2])
-    G[:, nb:, nb:] = Sh.T @ Sh
-    g[:, nb:] = Sh.T @ yi
-    G = G + 1e-12 * (np.trace(G, axis1=1, axis2=2) + 1e-300)[:, None, None] * np.eye(m)
-    th = np.linalg.solve(G, g[..., None])[..., 0]
-    rss = np.maximum(
-        yi @ yi - 2 * np.einsum("ci,ci->c", th, g) + np.einsum("ci,cij,cj->c", th, G, th), 0.0
-    )
+    th, rss = _partitioned_ls(Z, Sh, yi, C)
     # reorder to a, b, m
     theta = np.concatenate([th[:, nb : nb + na], th[:, :nb], th[:, nb + na :]], axis=1)
     return rss, theta
