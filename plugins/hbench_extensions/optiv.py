@@ -1,0 +1,176 @@
+"""``wang-iv-opt``: the quiet-phase IV of eq. (20) as an optimally weighted (GMM) estimator."""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import numpy as np
+
+from hbench import polyphase as pp
+from hbench.errors import InputError
+from hbench.identifiers import Estimate, Identifier, IdentifyOptions, SelectionRule, blind_fit
+from hbench.records import Record, Truth
+
+WEIGHTINGS = ("identity", "2sls", "optimal")
+
+
+def _weighted_solve(Rzp: np.ndarray, fz: np.ndarray, W: np.ndarray) -> np.ndarray:
+    """``theta = (Rzp' W Rzp)^-1 Rzp' W fz`` per run (``Rzp`` (R, M, na), ``W`` (R, M, M))."""
+    A = np.einsum("rmi,rml,rlj->rij", Rzp, W, Rzp)
+    b = np.einsum("rmi,rml,rl->ri", Rzp, W, fz)
+    return np.linalg.solve(A, b[..., None])[..., 0]
+
+
+def moment_covariance(g: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """Covariance ``S`` of the mean moment ``(1/n) sum_j g_j``, times n, for correlated rows.
+
+    ``g`` is ``(runs, n, M)``: one moment vector ``zeta(k_j) eps(t_j)`` per quiet-phase equation.
+    Rows of one period share a noise window, so their products are summed per period first
+    (``G_k``); neighbouring periods are joined with Bartlett weight 1/2 (Newey & West 1987), which
+    keeps ``S`` positive semi-definite and covers noise correlated over up to one period.
+    """
+    periods, inv = np.unique(k, return_inverse=True)
+    G = np.zeros((g.shape[0], periods.size, g.shape[2]))
+    np.add.at(G, (slice(None), inv), g)
+    n = g.shape[1]
+    S = np.matmul(G.transpose(0, 2, 1), G) / n
+    adjacent = np.diff(periods) == 1
+    if adjacent.any():
+        S1 = np.matmul(G[:, 1:][:, adjacent].transpose(0, 2, 1), G[:, :-1][:, adjacent]) / n
+        S = S + 0.5 * (S1 + S1.transpose(0, 2, 1))
+    return S
+
+
+def gmm_iv(
+    reg: pp.QuietRegression, r: np.ndarray, m: int, lag0: int = 0, weighting: str = "optimal"
+) -> tuple[np.ndarray, np.ndarray]:
+    """Quiet-phase IV of eq. (20) with a weighting matrix: ``(theta, weights used)``.
+
+    ``weighting``: ``"identity"`` is eq. (20) itself (the pseudo-inverse solution),
+    ``"2sls"`` uses ``W = [(1/n) sum zeta zeta']^-1`` (best for white equation noise),
+    ``"optimal"`` is the two-step GMM estimator: 2SLS, then ``W = S^-1`` with ``S`` the
+    covariance of the moments estimated from the quiet-phase residuals
+    (:func:`moment_covariance`).
+    """
+    if weighting not in WEIGHTINGS:
+        raise InputError(f"weighting must be one of {', '.join(WEIGHTINGS)}, got {weighting!r}")
+    Z, ok = pp.instruments(r, reg.k, m, lag0)
+    Z, phi, y, k = Z[:, ok], reg.phi[:, ok], reg.target[:, ok], reg.k[ok]
+    n = max(int(ok.sum()), 1)
+    Rzp = np.einsum("rjm,rji->rmi", Z, phi) / n
+    fz = np.einsum("rjm,rj->rm", Z, y) / n
+    if weighting == "identity":
+        return np.einsum("rim,rm->ri", np.linalg.pinv(Rzp, rcond=1e-12), fz), np.broadcast_to(
+            np.eye(Z.shape[2]), (Z.shape[0], Z.shape[2], Z.shape[2])
+        )
+    W = np.linalg.pinv(np.matmul(Z.transpose(0, 2, 1), Z) / n, hermitian=True)
+    theta = _weighted_solve(Rzp, fz, W)
+    if weighting == "optimal":
+        eps = y - np.einsum("rji,ri->rj", phi, theta)
+        S = moment_covariance(Z * eps[..., None], k)
+        # noise-free (or nearly): the moments vanish with the residuals and S carries no
+        # information; keep the first step there
+        scale = np.einsum("rmm->r", np.matmul(Z.transpose(0, 2, 1), Z) / n) * np.mean(y**2, axis=1)
+        informative = np.einsum("rmm->r", S) > 1e-20 * scale
+        if informative.any():
+            W = W.copy()
+            W[informative] = np.linalg.pinv(S[informative], hermitian=True)
+            theta = theta.copy()
+            theta[informative] = _weighted_solve(Rzp[informative], fz[informative], W[informative])
+    return theta, W
+
+
+def b_gmm(
+    dw: np.ndarray, r: np.ndarray, p: int, shift: int, nb: int, m: int, t_min: int, lag0: int
+) -> np.ndarray:
+    """Eq. (21) with 2SLS weighting: ``b_l = g' W c_l / g' W g``, ``W = [(1/K) sum zeta zeta']^-1``.
+
+    ``g = (1/K) sum zeta Delta w^(1)`` and ``c_l = (1/K) sum zeta Delta w^(l)`` over the periods
+    where every active phase is defined.
+    """
+    k = pp.phase_times(dw.shape[1], p, 1, shift, t_min)
+    k = np.intersect1d(k, pp.phase_times(dw.shape[1], p, nb, shift, t_min))
+    Z, ok = pp.instruments(r, k, m, lag0)
+    k, Z = k[ok], Z[:, ok]
+    n = max(k.size, 1)
+    D = dw[:, k[:, None] * p + np.arange(1, nb + 1)[None, :] + shift]  # (R, n, nb)
+    W = np.linalg.pinv(np.matmul(Z.transpose(0, 2, 1), Z) / n, hermitian=True)
+    c = np.einsum("rjm,rjl->rml", Z, D) / n  # (R, M, nb)
+    Wg = np.einsum("rml,rl->rm", W, c[:, :, 0])
+    return np.einsum("rm,rml->rl", Wg, c) / np.einsum("rm,rm->r", Wg, c[:, :, 0])[:, None]
+
+
+class OptimalIV(Identifier):
+    """The IVM made efficient: the reference at the current period and an optimal weighting.
+
+    Derivation. At a quiet phase, ``Delta y(t) = phi(t)' theta + eps(t)`` (eq. 13) with ``eps``
+    coloured (``Delta C(q) e``), and ``r`` independent of the noise (A1), so every
+    ``zeta(k) = [r(k - lag0), .., r(k - lag0 - m + 1)]`` gives moment conditions
+    ``E{zeta(k) eps(t)} = 0``, including ``lag0 = 0``: ``r(k)`` is exogenous and is the
+    reference most correlated with the quiet-phase regressors of period k, which the paper's
+    ``lag0 = 1`` leaves out. With more moments than parameters the efficient estimator is
+    ``theta = argmin g(theta)' S^-1 g(theta)`` (Hansen 1982), ``g`` the sample moments and ``S``
+    their covariance; because ``eps`` is coloured, S is not ``sigma^2 E{zeta zeta'}`` but carries
+    the noise correlation between the quiet phases of one period and of neighbouring periods,
+    estimated from the first-step (2SLS) residuals (:func:`moment_covariance`). The numerator
+    uses the same instruments in eq. (21) with 2SLS weighting, the structure comes from the
+    bias-compensated LSM's table (as ``wang-iv``), U from eq. (27).
+
+    Measured on the paper's example at sigma^2 = 1e-2 (seed 8, 200 runs, ``m`` 6-24): most of the
+    gain over ``wang-iv`` comes from the instrument ``r(k)`` (a1 std 0.030 -> 0.022 at m = 6 with
+    eq. 20's own weighting); 2SLS or optimal weighting adds ~10 % more (0.020).
+
+    Parameters
+    ----------
+    m : int
+        Number of reference lags used as instruments (raised to ``na`` if smaller).
+    lag0 : int
+        The first lag (0: ``r(k)``; the paper's eq. 20 has 1).
+    weighting : str
+        ``"optimal"`` (two-step GMM), ``"2sls"`` or ``"identity"`` (eq. 20's pseudo-inverse).
+    """
+
+    name: ClassVar[str] = "wang-iv-opt"
+    needs: ClassVar[frozenset[str]] = frozenset({"r"})
+    summary: ClassVar[str] = "Optimally weighted IV (GMM) with r(k) among the instruments"
+
+    def __init__(self, m: int = 8, lag0: int = 0, weighting: str = "optimal") -> None:
+        if int(m) < 1 or int(lag0) < 0:
+            raise InputError(f"wang-iv-opt needs m >= 1 and lag0 >= 0 (got m={m}, lag0={lag0})")
+        if weighting not in WEIGHTINGS:
+            raise InputError(
+                f"wang-iv-opt weighting must be one of {', '.join(WEIGHTINGS)}, got {weighting!r}"
+            )
+        self.m, self.lag0, self.weighting = int(m), int(lag0), weighting
+
+    def options(self) -> dict[str, Any]:
+        return {"m": self.m, "lag0": self.lag0, "weighting": self.weighting}
+
+    def identify(
+        self, record: Record, options: IdentifyOptions, truth: Truth | None = None
+    ) -> Estimate:
+        r = record.r
+        m = max(self.m, options.na_range[1] if options.na is None else options.na)
+
+        def denominator(reg: pp.QuietRegression, idx: np.ndarray):
+            theta, _ = gmm_iv(reg, r[idx], m, self.lag0, self.weighting)
+            return theta, reg.residual_ms(theta) / 2.0
+
+        def selector(reg: pp.QuietRegression, idx: np.ndarray):
+            return pp.bias_compensated(reg)
+
+        def numerator(dw, tau, nb, sigma2, idx):
+            t_min = pp.first_valid(dw)
+            return b_gmm(dw, r[idx], record.p, tau, nb, m, t_min, self.lag0)
+
+        return blind_fit(
+            self.name,
+            record,
+            options,
+            denominator=denominator,
+            numerator=numerator,
+            pooled=True,
+            rule=SelectionRule(),
+            info=self.options(),
+            selector=selector,
+        )
