@@ -11,7 +11,7 @@ The structure selection (Section 6, steps (i)-(iii)) is shared: :func:`select_st
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Hashable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
@@ -379,6 +379,26 @@ def _select_nb(
 DenominatorFit = Callable[[pp.QuietRegression, np.ndarray], tuple[np.ndarray, np.ndarray]]
 
 
+def largest_order(options: IdentifyOptions) -> int:
+    """The largest denominator order a method may fit under ``options``."""
+    return int(options.na) if options.na is not None else int(options.na_range[1])
+
+
+def shared_moments(
+    y: np.ndarray, p: int, L: int, cache: dict[str, Any] | None = None
+) -> tuple[np.ndarray, pp.LagMoments]:
+    """``(Delta y, its quiet-phase moments up to lag L)``, kept in ``cache`` (a record's) so that
+    every method run on one record computes them once."""
+    key = f"quiet-moments/p={p}/L={L}"
+    if cache is not None and key in cache:
+        return cache[key]
+    dy = pp.delta(y)
+    out = (dy, pp.LagMoments(dy, p, L))
+    if cache is not None:
+        cache[key] = out
+    return out
+
+
 def select_structure(
     y: np.ndarray,
     p: int,
@@ -386,6 +406,7 @@ def select_structure(
     fit: DenominatorFit,
     rule: SelectionRule = SelectionRule(),
     pooled: bool = False,
+    cache: dict[str, Any] | None = None,
 ) -> Structure:
     """Steps (i)-(iii) of Section 6 for a batch of runs.
 
@@ -407,7 +428,7 @@ def select_structure(
             var_dw=np.full((R, p), np.nan),
             na_values=np.array([options.na]),
         )
-    dy = pp.delta(y)
+    dy, lm = shared_moments(y, p, largest_order(options), cache)
     scale = np.nanmean(dy**2, axis=1)
     na_lo, na_hi = options.na_range
     na_values = np.arange(na_lo, na_hi + 1) if options.na is None else np.array([options.na])
@@ -423,17 +444,17 @@ def select_structure(
     # one regression per shift with the largest order; every order uses its first columns and
     # the same rows (those valid for the largest order), so V is compared on equal data
     na_max = int(na_values.max())
-    full = [pp.quiet_regression(dy, p, na_max, (p,), s) for s in shifts]
-    full = [pp.QuietRegression(r.target, r.phi, r.k, fast=True) for r in full]
-    for reg in full:
-        reg._all_moments()  # once per shift; every order's truncation shares them
+    full = [pp.quiet_regression(dy, p, na_max, (p,), s, moments=lm, fast=True) for s in shifts]
     C = np.empty((R, n_na, p, p))
     for i, na in enumerate(na_values):
         regs = [reg.truncate(int(na)) for reg in full]
-        for s in shifts:
-            theta = fit(regs[s], all_runs)[0]
-            for s2 in shifts:
-                C[:, i, s, s2] = pp.aic(regs[s2], theta)
+        # eq. (19) for the estimate of every shift s on the rows of every shift s2, from the
+        # moments: the residual mean square is v' M v with v = [1, -theta]
+        v = np.ones((R, p, int(na) + 1))
+        v[:, :, 1:] = -np.stack([fit(reg, all_runs)[0] for reg in regs], axis=1)
+        M = np.stack([reg.all_moments() for reg in regs], axis=1)  # (R, s2, na+1, na+1)
+        ms = np.einsum("rsa,rtab,rsb->rst", v, M, v, optimize=True)
+        C[:, i] = (1.0 + 2.0 * na / regs[0].n) * ms
     V = np.einsum("rass->ras", C)
     allowed = np.ones(p, bool)
     if options.tau_range is not None:
@@ -454,7 +475,7 @@ def select_structure(
     for key in set(zip(na.tolist(), tau.tolist(), strict=True)):
         idx = np.flatnonzero((na == key[0]) & (tau == key[1]))
         phases = tuple(range(options.nb_max + 1, p + 1)) if pooled else (p,)
-        reg = pp.quiet_regression(dy[idx], p, key[0], phases, key[1])
+        reg = pp.quiet_regression(dy[idx], p, key[0], phases, key[1], moments=lm.take(idx))
         a = np.concatenate([np.ones((idx.size, 1)), fit(reg, idx)[0]], axis=1)
         dw = pp.delta(pp.filtered_output(y[idx], a))
         var_dw[idx] = pp.phase_variances(dw, p, key[1], t_min=key[0] + 1)
@@ -553,6 +574,7 @@ def blind_fit(
     info: dict[str, Any] | None = None,
     selector: DenominatorFit | None = None,
     refine: Callable[..., tuple[np.ndarray, np.ndarray]] | None = None,
+    selection_key: Hashable | None = None,
 ) -> Estimate:
     """The blind route shared by the methods: structure, A, B, A4 check, U, alignment with x.
 
@@ -561,13 +583,22 @@ def blind_fit(
     ``selector`` is the denominator estimate used for the structure selection (default: the
     method's own ``denominator``). ``refine(reg, idx, tau, nb) -> (theta, sigma2)``, when given,
     replaces ``denominator`` for the final estimate once the structure is known.
+    ``selection_key`` names the selection estimate (e.g. ``"bias-compensated"``): methods that
+    select with the same estimate, rule and options on one record share the selected structure
+    (kept in ``record.cache``) instead of computing the same tables again.
     """
     p, R, K = record.p, record.runs, record.n_slow
     why = check_identifiable(p, options)
     if why:
         return empty_estimate(method, record, why, **(info or {}))
     y = record.y
-    st = select_structure(y, p, options, selector or denominator, rule, pooled)
+    key = None if selection_key is None else ("structure", selection_key, rule, pooled, options)
+    st = record.cache.get(key) if key is not None else None
+    if st is None:
+        st = select_structure(y, p, options, selector or denominator, rule, pooled, record.cache)
+        if key is not None:
+            record.cache[key] = st
+    dy_all, lm = shared_moments(y, p, largest_order(options), record.cache)
     na_max, nb_max = int(st.na.max()), int(st.nb.max())
     a = np.zeros((R, na_max))
     b = np.zeros((R, nb_max))
@@ -577,9 +608,8 @@ def blind_fit(
     reason = [""] * R
     inverse: dict[str, int] = {}
     for (na, tau, nb), idx in groups(st.na, st.tau, st.nb):
-        dy = pp.delta(y[idx])
         phases = tuple(range(nb + 1, p + 1)) if pooled else (p,)
-        reg = pp.quiet_regression(dy, p, na, phases, tau)
+        reg = pp.quiet_regression(dy_all[idx], p, na, phases, tau, moments=lm.take(idx))
         theta, s2 = refine(reg, idx, tau, nb) if refine is not None else denominator(reg, idx)
         a[idx, :na] = theta
         sigma2[idx] = s2
@@ -610,9 +640,9 @@ def blind_fit(
         method=method,
         a=a,
         b=b,
-        na=st.na,
-        nb=st.nb,
-        tau=st.tau,
+        na=st.na.copy(),
+        nb=st.nb.copy(),
+        tau=st.tau.copy(),
         sigma2=sigma2,
         U=U,
         identifiable=ok,

@@ -13,10 +13,12 @@ structure (na, nb, tau); callers group runs by structure.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 from scipy import signal
+from scipy.linalg import lapack
 
 _RCOND = 1e-12
 
@@ -48,79 +50,168 @@ def first_valid(z: np.ndarray) -> int:
 # --- denominator: quiet-phase regressions (eqs. 13-15, 19, 20) ---------------------------------
 
 
-@dataclass(frozen=True)
+class LagMoments:
+    """Every second moment the quiet-phase regressions need, from one batched Gram matrix.
+
+    With ``L`` the largest regression order, the window of period ``k``,
+    ``z_k = [Delta y(k p - L) .. Delta y(k p + p - 1)]``, holds every sample and lag a regression
+    at any phase and shift can use; ``G = (1/n) sum_k z_k z_k^T`` over the periods
+    ``k0 .. k1`` whose window lies in the record (``k p - L >= 1``: ``Delta y(0)`` is undefined)
+    then gives, for the residue class ``c = t mod p`` and lags ``i, j <= L``,
+    ``(1/n) sum_t Delta y(t - i) Delta y(t - j)`` as ``G[L + c - i, L + c - j]``. One Gram per
+    batch (``O(K (p + L)^2)`` per run) serves the selection tables of every order, shift and
+    phase and the final fits; :class:`QuietRegression` rows use exactly the same periods.
+    """
+
+    def __init__(self, dy: np.ndarray, p: int, L: int, G: np.ndarray | None = None) -> None:
+        self.p, self.L = int(p), int(L)
+        K = dy.shape[1] // p
+        self.k0, self.k1 = -(-(self.L + 1) // self.p), K - 1
+        self.n = max(self.k1 - self.k0 + 1, 0)
+        if self.n < 1:
+            raise ValueError(f"record too short for regressions of order {L} at p = {p}")
+        if G is None:
+            win = sliding_window_view(dy, self.p + self.L, axis=1)[
+                :, self.k0 * self.p - self.L :: self.p
+            ]
+            win = win[:, : self.n]
+            G = np.einsum("rni,rnj->rij", win, win, optimize=True) / self.n
+        self.G = G
+
+    def take(self, idx: np.ndarray) -> LagMoments:
+        """The same moments for the runs ``idx``."""
+        sub = object.__new__(LagMoments)
+        sub.p, sub.L, sub.k0, sub.k1, sub.n = self.p, self.L, self.k0, self.k1, self.n
+        sub.G = self.G[idx]
+        return sub
+
+    def block(self, c: int, na: int) -> np.ndarray:
+        """``(1/n) sum_t v(t) v(t)^T``, ``v = [Delta y(t) .. Delta y(t - na)]``, ``t = c mod p``."""
+        a = self.L + c - np.arange(na + 1)
+        return self.G[:, a[:, None], a[None, :]]
+
+
 class QuietRegression:
     """The quiet-phase equations (13), stacked over the requested phases.
 
     ``target[r, j] = Delta y(t_j)``, ``phi[r, j, :] = -[Delta y(t_j - 1) .. Delta y(t_j - na)]``;
-    ``k[j]`` is the slow index of row ``j`` (for instruments). ``fast=True`` evaluates residual
-    mean squares from the cached moments (``yy - 2 theta.f + theta' R theta``): exact algebra,
-    but with rounding of order eps times ``yy`` (use it for selection tables, not final fits).
+    ``k[j]`` is the slow index of row ``j`` (for instruments). Rows are the periods of a
+    :class:`LagMoments` (the same for every order up to its ``L``), so the moments come from its
+    Gram matrix without forming the rows; ``target`` and ``phi`` are formed only when a method
+    asks for them. ``fast=True`` evaluates residual mean squares from the moments
+    (``yy - 2 theta.f + theta' R theta``): exact algebra, but with rounding of order eps times
+    ``yy`` (use it for selection tables, not final fits).
     """
 
-    target: np.ndarray
-    phi: np.ndarray
-    k: np.ndarray
-    fast: bool = False
-    _moments: dict = field(default_factory=dict, repr=False, compare=False)
+    def __init__(
+        self,
+        dy: np.ndarray,
+        lm: LagMoments,
+        na: int,
+        phases: tuple[int, ...] | list[int],
+        shift: int,
+        fast: bool = False,
+    ) -> None:
+        if na > lm.L:
+            raise ValueError(f"order {na} exceeds the moments' largest lag {lm.L}")
+        p = lm.p
+        self.dy, self.lm, self.fast = dy, lm, fast
+        self.phases, self.shift = tuple(int(l) for l in phases), int(shift)
+        self._na = int(na)
+        periods = np.arange(lm.k0, lm.k1 + 1)
+        ts, ks = [], []
+        for l in self.phases:
+            c, carry = divmod(l + self.shift, p)[::-1]
+            ts.append(periods * p + c)
+            ks.append(periods - carry)
+        self.t = np.concatenate(ts)
+        self.k = np.concatenate(ks)
+        self._cache: dict[str, np.ndarray] = {}
 
     @property
     def n(self) -> int:
-        return self.target.shape[1]
+        return self.t.size
 
     @property
     def na(self) -> int:
-        return self.phi.shape[2]
+        return self._na
 
-    def _all_moments(self) -> np.ndarray:
-        if "M" not in self._moments:
-            Z = np.concatenate([self.target[:, :, None], self.phi], axis=2)
-            self._moments["M"] = np.matmul(Z.transpose(0, 2, 1), Z) / self.n
-        return self._moments["M"]
+    @property
+    def target(self) -> np.ndarray:
+        """``Delta y(t_j)`` per run, ``(runs, n)``."""
+        if "target" not in self._cache:
+            self._cache["target"] = self.dy[:, self.t]
+        return self._cache["target"]
+
+    @property
+    def phi(self) -> np.ndarray:
+        """``-[Delta y(t_j - 1) .. Delta y(t_j - na)]`` per run, ``(runs, n, na)``."""
+        if "phi" not in self._cache:
+            lags = np.arange(1, self._na + 1)
+            self._cache["phi"] = -self.dy[:, self.t[:, None] - lags[None, :]]
+        return self._cache["phi"]
+
+    def all_moments(self) -> np.ndarray:
+        """``(1/n) sum z z^T`` with ``z = [Delta y(t), phi(t)]``: the mean of the phases' blocks."""
+        if "M" not in self._cache:
+            p = self.lm.p
+            M = sum(self.lm.block((l + self.shift) % p, self._na) for l in self.phases)
+            M = M / len(self.phases)
+            sign = np.ones(self._na + 1)
+            sign[1:] = -1.0
+            self._cache["M"] = M * sign[:, None] * sign[None, :]
+        return self._cache["M"]
 
     def moments(self) -> tuple[np.ndarray, np.ndarray]:
         """``(Rm, f)``: ``(1/n) sum phi phi^T`` and ``(1/n) sum phi Delta y``."""
-        M = self._all_moments()
+        M = self.all_moments()
         return M[:, 1:, 1:], M[:, 1:, 0]
 
     def residual_ms(self, theta: np.ndarray) -> np.ndarray:
-        """``(1/n) sum (Delta y - phi^T theta)^2`` per run."""
+        """``(1/n) sum (Delta y - phi^T theta)^2`` per run.
+
+        From the moments, ``v' M v`` with ``v = [1, -theta]``. Its rounding is of order eps
+        times ``M[0, 0]``; unless ``fast``, runs whose residual is below ``1e-6 M[0, 0]`` (where
+        that rounding would exceed ~1e-10 of the value, e.g. noise-free data) are recomputed
+        from the rows.
+        """
+        M = self.all_moments()
+        v = np.ones((theta.shape[0], self._na + 1))
+        v[:, 1:] = -theta
+        ms = np.einsum("ra,rab,rb->r", v, M, v, optimize=True)
         if self.fast:
-            M = self._all_moments()
-            Rm, f = M[:, 1:, 1:], M[:, 1:, 0]
-            return (
-                M[:, 0, 0]
-                - 2.0 * np.einsum("ri,ri->r", theta, f)
-                + np.einsum("ri,rik,rk->r", theta, Rm, theta)
-            )
-        res = self.target - np.einsum("rji,ri->rj", self.phi, theta)
-        return np.mean(res**2, axis=1)
+            return ms
+        exact = ms < 1e-6 * M[:, 0, 0]
+        if exact.any():
+            rows = np.flatnonzero(exact)
+            res = self.dy[np.ix_(rows, self.t)]
+            for i in range(1, self._na + 1):
+                res += theta[rows, i - 1 : i] * self.dy[np.ix_(rows, self.t - i)]
+            ms = ms.copy()
+            ms[rows] = np.mean(res**2, axis=1)
+        return ms
 
     def truncate(self, na: int) -> QuietRegression:
-        """The same rows with the first ``na`` regressors (moments shared, not recomputed)."""
-        sub = QuietRegression(self.target, self.phi[:, :, :na], self.k, self.fast)
-        if "M" in self._moments:
-            sub._moments["M"] = self._moments["M"][:, : na + 1, : na + 1]
-        return sub
+        """The same rows with the first ``na`` regressors (moments from the same Gram)."""
+        return QuietRegression(self.dy, self.lm, na, self.phases, self.shift, self.fast)
 
 
 def quiet_regression(
-    dy: np.ndarray, p: int, na: int, phases: tuple[int, ...] | list[int], shift: int
+    dy: np.ndarray,
+    p: int,
+    na: int,
+    phases: tuple[int, ...] | list[int],
+    shift: int,
+    moments: LagMoments | None = None,
+    fast: bool = False,
 ) -> QuietRegression:
     """Rows of eq. (13) at the given phases (1-based ``l``) under ``shift``.
 
-    ``dy`` is ``delta(y)``; rows need ``t - na >= 1`` so every regressor is defined.
+    ``dy`` is ``delta(y)``. ``moments`` (computed from the same ``dy``) fixes the rows to its
+    periods and shares its Gram; without it one is computed with ``L = na``.
     """
-    N = dy.shape[1]
-    ts, ks = [], []
-    for l in phases:
-        k = phase_times(N, p, l, shift, t_min=na + 1)
-        ks.append(k)
-        ts.append(k * p + l + shift)
-    t = np.concatenate(ts)
-    lags = np.arange(0, na + 1)
-    block = dy[:, t[:, None] - lags[None, :]]
-    return QuietRegression(target=block[..., 0], phi=-block[..., 1:], k=np.concatenate(ks))
+    lm = LagMoments(dy, p, na) if moments is None else moments
+    return QuietRegression(dy, lm, na, phases, shift, fast)
 
 
 def _pinv_sym(Rm: np.ndarray) -> np.ndarray:
@@ -172,20 +263,44 @@ def instruments(
     return r[:, np.clip(idx, 0, r.shape[1] - 1)], ok
 
 
+def iv_moments(reg: QuietRegression, r: np.ndarray, m: int, lag0: int = 1) -> np.ndarray:
+    """``(1/n) sum zeta [Delta y, phi^T]`` over the rows with every instrument defined.
+
+    Computed phase by phase on strided views (the rows of a phase are consecutive periods), so
+    neither the instrument matrix nor the regressors are copied. Returns ``(runs, m, na + 1)``.
+    """
+    p, na, K = reg.lm.p, reg.na, r.shape[1]
+    win = sliding_window_view(r, m, axis=1)[..., ::-1]  # win[:, j] = r(j + m - 1) .. r(j)
+    periods = np.arange(reg.lm.k0, reg.lm.k1 + 1)
+    out = np.zeros((r.shape[0], m, na + 1))
+    n = 0
+    for l in reg.phases:
+        c, carry = divmod(l + reg.shift, p)[::-1]
+        k = periods - carry
+        ok = (k - lag0 - m + 1 >= 0) & (k - lag0 < K)
+        if not ok.any():
+            continue
+        kk = periods[ok]
+        j0 = kk[0] - carry - lag0 - m + 1
+        Z = win[:, j0 : j0 + kk.size]
+        t0, t1 = kk[0] * p + c, kk[-1] * p + c
+        for i in range(na + 1):
+            col = reg.dy[:, t0 - i : t1 - i + 1 : p]
+            out[:, :, i] += np.einsum("rnm,rn->rm", Z, col, optimize=True) * (-1.0 if i else 1.0)
+        n += kk.size
+    return out / max(n, 1)
+
+
 def iv(reg: QuietRegression, r: np.ndarray, m: int, lag0: int = 1) -> np.ndarray:
     """Eq. (20): extended IV ``theta = [(1/n) sum zeta phi^T]^+ (1/n) sum zeta Delta y``."""
-    Z, ok = instruments(r, reg.k, m, lag0)
-    Z, phi, y = Z[:, ok], reg.phi[:, ok], reg.target[:, ok]
-    n = max(int(ok.sum()), 1)
-    Rzp = np.einsum("rjm,rji->rmi", Z, phi) / n
-    fz = np.einsum("rjm,rj->rm", Z, y) / n
-    return np.einsum("rim,rm->ri", np.linalg.pinv(Rzp, rcond=_RCOND), fz)
+    G = iv_moments(reg, r, m, lag0)
+    return np.einsum("rim,rm->ri", np.linalg.pinv(G[:, :, 1:], rcond=_RCOND), G[:, :, 0])
 
 
 def aic(reg: QuietRegression, theta: np.ndarray, K: int | None = None) -> np.ndarray:
     """Eq. (19): ``V(na) = (1 + 2 na / K) (1/K) sum (Delta y - phi^T theta)^2``."""
     K = reg.n if K is None else K
-    na = reg.phi.shape[2]
+    na = reg.na
     return (1.0 + 2.0 * na / K) * reg.residual_ms(theta)
 
 
@@ -195,8 +310,12 @@ def aic(reg: QuietRegression, theta: np.ndarray, K: int | None = None) -> np.nda
 def filtered_output(y: np.ndarray, a: np.ndarray) -> np.ndarray:
     """``w(t) = A(q) y(t)`` per run (``a`` of shape ``(runs, na + 1)``); ``nan`` for ``t < na``."""
     na = a.shape[1] - 1
-    w = np.einsum("ri,rit->rt", a, np.stack([np.roll(y, i, axis=1) for i in range(na + 1)], 1))
+    N = y.shape[1]
+    w = np.empty(y.shape)
     w[:, :na] = np.nan
+    np.multiply(a[:, :1], y[:, na:], out=w[:, na:])
+    for i in range(1, na + 1):
+        w[:, na:] += a[:, i : i + 1] * y[:, na - i : N - i]
     return w
 
 
@@ -277,8 +396,22 @@ def solve_tridiagonal(
     """Batched Thomas algorithm: ``diag`` and ``rhs`` ``(R, M)``, ``lower``/``upper`` ``(R, M-1)``.
 
     O(M) per run, vectorised over runs. Stable for the symmetric positive definite normal
-    equations of (27).
+    equations of (27). A symmetric system (``lower is upper``) goes to LAPACK's ``dptsv`` as one
+    block-diagonal system of all runs (about 3x faster); this loop is the fallback when LAPACK
+    finds a run not positive definite, and the path for unsymmetric systems.
     """
+    R, M = diag.shape
+    if lower is upper and M > 1:
+        e = np.zeros((R, M))
+        e[:, :-1] = lower  # zero coupling between consecutive runs
+        _d, _e, x, info = lapack.dptsv(diag.ravel(), e.ravel()[:-1], rhs.ravel())
+        if info == 0:
+            return x.reshape(R, M)
+    return _thomas(lower, diag, upper, rhs)
+
+
+def _thomas(lower: np.ndarray, diag: np.ndarray, upper: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """Batched Thomas algorithm, the pure-numpy path of :func:`solve_tridiagonal`."""
     R, M = diag.shape
     c = np.empty((R, M))
     d = np.empty((R, M))
@@ -317,8 +450,13 @@ def simo_system(w: np.ndarray, p: int, shift: int, t_min: int) -> SimoSystem:
     n = np.arange(n0, n1 + 1)
     t = n[:, None] * p + np.arange(1, p + 1)[None, :] + shift
     valid = (t >= t_min) & (t < N)
-    W = w[:, np.clip(t, 0, N - 1)]
-    W = np.where(valid[None], W, 0.0)
+    # the samples of consecutive periods are consecutive: one slice, reshaped, no gather
+    start, M = int(t[0, 0]), n.size
+    avail = min(M * p, N - start)
+    W = np.zeros((w.shape[0], M * p))
+    W[:, :avail] = w[:, start : start + avail]
+    W = W.reshape(w.shape[0], M, p)
+    W[:, ~valid] = 0.0
     return SimoSystem(W=W, valid=valid, n0=int(n0))
 
 
@@ -407,15 +545,46 @@ def inner_signal_direct(
     """
     R, _N = y.shape
     out = np.full((R, M), np.nan)
-    for rr in range(R):  # lfilter takes one coefficient set; runs differ in (a, b)
-        z = signal.lfilter(a[rr], b[rr], y[rr, shift:])
-        t = (np.arange(n_first, n_first + M)) * p + 1
-        # filtered from rest on a record that need not start at rest: drop the samples until
-        # the 1/B transient has decayed below 1e-3 (nan there)
-        rho = np.max(np.abs(np.roots(b[rr]))) if b.shape[1] > 1 else 0.0
-        skip = int(np.ceil(np.log(1e-3) / np.log(rho))) if 0.0 < rho < 1.0 else 0
-        ok = (t < z.size) & (t >= skip)
-        out[rr, ok] = z[t[ok]]
+    z = batched_lfilter(a, b, y[:, shift:])
+    t = (np.arange(n_first, n_first + M)) * p + 1
+    # filtered from rest on a record that need not start at rest: drop the samples until the
+    # 1/B transient has decayed below 1e-3 (nan there)
+    rho = max_root_modulus(b)
+    with np.errstate(divide="ignore"):
+        skip = np.where(
+            (rho > 0.0) & (rho < 1.0), np.ceil(np.log(1e-3) / np.log(np.clip(rho, 1e-300, None))), 0
+        )
+    ok = (t[None, :] < z.shape[1]) & (t[None, :] >= skip[:, None])
+    vals = z[:, np.clip(t, 0, z.shape[1] - 1)]
+    return np.where(ok, vals, out)
+
+
+def max_root_modulus(c: np.ndarray) -> np.ndarray:
+    """Largest ``|root|`` of each row's polynomial ``c[r, 0] z^n + .. + c[r, n]`` (0 if n = 0).
+
+    Eigenvalues of the batched companion matrices: one LAPACK call for all runs.
+    """
+    R, n1 = c.shape
+    if n1 < 2:
+        return np.zeros(R)
+    n = n1 - 1
+    comp = np.zeros((R, n, n))
+    comp[:, 0, :] = -c[:, 1:] / c[:, :1]
+    if n > 1:
+        comp[:, np.arange(1, n), np.arange(n - 1)] = 1.0
+    return np.max(np.abs(np.linalg.eigvals(comp)), axis=1)
+
+
+def batched_lfilter(num: np.ndarray, den: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``scipy.signal.lfilter(num[r], den[r], x[r])`` for every run r, from rest.
+
+    lfilter takes one coefficient set per call; a loop over runs in its compiled kernel
+    (~40 us per run of 4000 samples) measured faster than a recursion over time vectorised
+    over runs (~100 us per time step for 1000 runs).
+    """
+    out = np.empty(x.shape)
+    for r in range(x.shape[0]):
+        out[r] = signal.lfilter(num[r], den[r], x[r])
     return out
 
 

@@ -47,6 +47,11 @@ class Record:
     h: float
     source: str = "simulation"
     meta: dict[str, Any] = field(default_factory=dict)
+    #: What methods derive from ``y`` alone (the quiet-phase moments, a structure selection),
+    #: shared by the methods run on this record and its :meth:`withhold` copies; never part of
+    #: the data. Emptied by :func:`dataclasses.replace` (a new ``y``). Arrays of a record are
+    #: not to be modified in place.
+    cache: dict[str, Any] = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if self.p < 1 or int(self.p) != self.p:
@@ -112,12 +117,14 @@ class Record:
         ``y`` is always shown. Methods receive the record through this, so a method that did not
         declare it needs ``x`` or ``r`` cannot read them.
         """
-        return replace(
+        out = replace(
             self,
             x=self.x if "x" in keep else None,
             r=self.r if "r" in keep else None,
             meta={k: v for k, v in self.meta.items() if k in {"notices"}},
         )
+        object.__setattr__(out, "cache", self.cache)  # same y: what was derived from it holds
+        return out
 
 
 @dataclass(frozen=True)

@@ -54,7 +54,7 @@ def _rows_for(
     ids: Mapping[str, Any],
     start: int,
     known_multiple: int,
-) -> list[dict[str, Any]]:
+) -> pd.DataFrame:
     R = record.runs
     plant = truth.plant
     true = plant.true_params()
@@ -76,47 +76,57 @@ def _rows_for(
     params = est.params()
     for key, tv in true.items():
         values[key] = (params.get(key, np.full(R, np.nan)), tv)
-    rows = []
-    for i in range(R):
-        status = "ok" if est.identifiable[i] else "not-identifiable"
-        for q, (arr, tv) in values.items():
-            rows.append(
-                {
-                    **ids,
-                    "method": method,
-                    "run": start + i,
-                    "quantity": q,
-                    "value": float(arr[i]),
-                    "true": tv,
-                    "snr": float(truth.snr[i]),
-                    "status": status,
-                    "error": est.reason[i],
-                }
-            )
-    return rows
+    return _frame(
+        method,
+        ids,
+        start,
+        values,
+        truth.snr,
+        np.where(est.identifiable, "ok", "not-identifiable"),
+        list(est.reason),
+    )
+
+
+_ID_DTYPES = {"p": np.int64, "delay": np.int64, "sigma2": float, "snr_target": float}
+
+
+def _frame(
+    method: str,
+    ids: Mapping[str, Any],
+    start: int,
+    values: Mapping[str, tuple[np.ndarray, float]],
+    snr: np.ndarray,
+    status: np.ndarray,
+    error: Sequence[str],
+) -> pd.DataFrame:
+    """Tidy rows, run-major (every quantity of run 0, then run 1 ..), built column-wise."""
+    names = list(values)
+    R, Q = len(snr), len(names)
+    V = np.empty((R, Q))
+    for j, q in enumerate(names):
+        V[:, j] = values[q][0]
+    n = R * Q
+    cols: dict[str, Any] = {c: np.full(n, ids[c], dtype=_ID_DTYPES.get(c, object)) for c in ids}
+    cols.update(
+        method=method,
+        run=np.repeat(np.arange(start, start + R), Q),
+        quantity=np.tile(np.array(names, dtype=object), R),
+        value=V.ravel(),
+        true=np.tile(np.array([values[q][1] for q in names], dtype=float), R),
+        snr=np.repeat(np.asarray(snr, dtype=float), Q),
+        status=np.repeat(np.asarray(status, dtype=object), Q),
+        error=np.repeat(np.asarray(error, dtype=object), Q),
+    )
+    return pd.DataFrame(cols, columns=list(TIDY_COLUMNS))
 
 
 def _failed_rows(
     method: str, truth: Truth, message: str, ids: Mapping[str, Any], start: int
-) -> list[dict[str, Any]]:
+) -> pd.DataFrame:
     true = truth.plant.true_params()
-    rows = []
-    for i in range(truth.U.shape[0]):
-        for q in (*QUANTITIES, *true):
-            rows.append(
-                {
-                    **ids,
-                    "method": method,
-                    "run": start + i,
-                    "quantity": q,
-                    "value": np.nan,
-                    "true": true.get(q, np.nan),
-                    "snr": float(truth.snr[i]),
-                    "status": "failed",
-                    "error": message,
-                }
-            )
-    return rows
+    R = truth.U.shape[0]
+    values = {q: (np.full(R, np.nan), true.get(q, np.nan)) for q in (*QUANTITIES, *true)}
+    return _frame(method, ids, start, values, truth.snr, np.full(R, "failed"), [message] * R)
 
 
 def run_cell(
@@ -170,7 +180,7 @@ def run_cell(
         "snr_target": scenario.snr if scenario.snr is not None else np.nan,
         "seed": str(seq.entropy),
     }
-    rows: list[dict[str, Any]] = []
+    rows: list[pd.DataFrame] = []
     example: dict[str, Any] = {}
     done = 0
     while done < runs:
@@ -191,10 +201,10 @@ def run_cell(
                 last = traceback.extract_tb(exc.__traceback__)[-1]
                 where = f"{last.filename.rsplit('/', 1)[-1]}:{last.lineno}"
                 msg = f"{type(exc).__name__}: {exc} ({where})"
-                rows.extend(_failed_rows(name, truth, " ".join(msg.split()), ids, done))
+                rows.append(_failed_rows(name, truth, " ".join(msg.split()), ids, done))
                 continue
             seconds = time.perf_counter() - t0
-            rows.extend(
+            rows.append(
                 _rows_for(name, est, truth, record, seconds, ids, done, options.delay_multiple)
             )
             if keep_example and name not in example["estimates"]:
@@ -202,7 +212,7 @@ def run_cell(
         done += n
         if progress is not None:
             progress(done, runs)
-    frame = pd.DataFrame(rows, columns=list(TIDY_COLUMNS))
+    frame = pd.concat(rows, ignore_index=True) if rows else pd.DataFrame(columns=list(TIDY_COLUMNS))
     return CellResult(rows=frame, example=example)
 
 

@@ -37,7 +37,7 @@ def inverse_inner(choice: str):
         sys = pp.simo_system(w, p, tau, t_min)
         n_first = sys.n0 - 1
         M = sys.W.shape[1] + 1
-        nmp = np.array([np.any(np.abs(np.roots(bb)) >= 1.0) if bb.size > 1 else False for bb in b])
+        nmp = pp.max_root_modulus(b) >= 1.0
         use_direct = (
             (~nmp) if choice in ("auto", "refuse") else np.full(b.shape[0], choice == "direct")
         )
@@ -97,6 +97,7 @@ class BaiFu(Identifier):
             pooled=self.pooled,
             rule=SelectionRule(),
             info=self.options(),
+            selection_key="ols",
         )
 
 

@@ -153,4 +153,5 @@ class ColoredNoiseLSM(Identifier):
             rule=SelectionRule(),
             info=self.options(),
             refine=refined,
+            selection_key="bias-compensated",
         )

@@ -173,4 +173,5 @@ class OptimalIV(Identifier):
             rule=SelectionRule(),
             info=self.options(),
             selector=selector,
+            selection_key="bias-compensated",
         )

@@ -107,6 +107,7 @@ class SunLiuSano(Identifier):
             inner=mint_inner,
             pooled=True,
             info=self.options(),
+            selection_key="bias-compensated",
         )
 
 

@@ -88,6 +88,7 @@ class WangLSM(_Wang):
             pooled=self.pooled,
             rule=self.rule,
             info=self.options(),
+            selection_key="bias-compensated",
         )
 
 
@@ -151,6 +152,7 @@ class WangIV(_Wang):
             rule=self.rule,
             info=self.options(),
             selector=selector,
+            selection_key="bias-compensated" if self.structure == "lsm" else None,
         )
 
 

@@ -1,0 +1,128 @@
+"""End to end on the paper's example (issue 7): simulate + wang-lsm + wang-iv + bai-fu + oracle +
+metrics + tidy rows, batched, against the naive baseline of ``naive.py`` in the same session.
+
+* ``test_end_to_end[1000]``: :func:`hbench.runner.run_cell` on 1000 runs (one chunk).
+* ``test_naive_baseline[unbatched]``: the same work one run at a time with hbench's O(K) solve
+  (the gain of batching alone); ``[dense]``: one run at a time with eq. (27) solved by dense
+  least squares (the issue's "naive baseline written plainly").
+* ``test_peak_memory_10000_runs``: one 10 000-run cell in a fresh process (chunks of 1000 runs);
+  its peak resident memory is recorded and must stay under 2 GB.
+
+The speed-ups (runs per second of the batched path over each baseline) are printed at the end
+and stored in ``extra_info``; the naive runs are checked to give the batched path's fitness.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pytest_benchmark.fixture import BenchmarkFixture
+
+from hbench.runner import methods_from_names, run_cell
+from hbench.simulate import Scenario
+
+sys.path.insert(0, str(Path(__file__).parent))
+from naive import run_naive
+
+METHODS = ["wang-lsm", "wang-iv", "bai-fu", "oracle"]
+SEED = 2026
+NAIVE_RUNS = {"unbatched": 20, "dense": 3}
+_rate: dict[str, float] = {}
+_fitness: dict[str, np.ndarray] = {}
+
+
+def _batched_fitness(rows) -> dict[str, np.ndarray]:
+    fit = rows[rows["quantity"] == "fitness"].sort_values(["method", "run"])
+    return {m: g["value"].to_numpy() for m, g in fit.groupby("method")}
+
+
+def test_end_to_end(benchmark: BenchmarkFixture, paper_scenario: Scenario) -> None:
+    runs = 1000
+    methods = methods_from_names(METHODS)
+    res = benchmark.pedantic(
+        run_cell,
+        args=(paper_scenario, methods, runs, SEED),
+        kwargs={"chunk": runs},
+        rounds=3,
+        iterations=1,
+        warmup_rounds=1,
+    )
+    assert len(res.rows) > 0 and (res.rows["status"] == "ok").mean() > 0.99
+    rate = runs / benchmark.stats.stats.mean
+    _rate["batched"] = rate
+    _fitness.update(_batched_fitness(res.rows))
+    benchmark.extra_info.update(runs=runs, methods=METHODS, runs_per_second=rate)
+
+
+@pytest.mark.parametrize("kind", list(NAIVE_RUNS))
+def test_naive_baseline(benchmark: BenchmarkFixture, paper_scenario: Scenario, kind: str) -> None:
+    runs = NAIVE_RUNS[kind]
+    methods = methods_from_names(METHODS)
+    out = benchmark.pedantic(
+        run_naive,
+        args=(paper_scenario, methods, runs, SEED),
+        kwargs={"dense": kind == "dense"},
+        rounds=1,
+        iterations=1,
+    )
+    rate = runs / benchmark.stats.stats.mean
+    _rate[kind] = rate
+    benchmark.extra_info.update(runs=runs, methods=METHODS, runs_per_second=rate)
+    if _fitness:  # the same numbers as the batched path (tridiagonal vs dense: 1e-10 on U)
+        for name, f in out.items():
+            np.testing.assert_allclose(f, _fitness[name][:runs], rtol=0, atol=1e-6)
+    if "batched" in _rate:
+        speedup = _rate["batched"] / rate
+        benchmark.extra_info["batched_speedup"] = speedup
+        print(
+            f"\nend to end: batched {_rate['batched']:.0f} runs/s, {kind} baseline "
+            f"{rate:.2f} runs/s -> {speedup:.0f}x"
+        )
+
+
+_MEMORY_SCRIPT = textwrap.dedent(
+    """
+    import resource, sys, time
+    from hbench import scenarios
+    from hbench.runner import methods_from_names, run_cell
+    sc = scenarios.build(scenarios.PAPER_SECTION6)
+    t0 = time.perf_counter()
+    res = run_cell(sc, methods_from_names({methods!r}), 10000, {seed}, chunk=1000)
+    wall = time.perf_counter() - t0
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    print(len(res.rows), wall, peak)
+    """
+)
+
+
+def test_peak_memory_10000_runs(benchmark: BenchmarkFixture) -> None:
+    script = _MEMORY_SCRIPT.format(methods=METHODS, seed=SEED)
+
+    def run() -> tuple[int, float, int]:
+        proc = subprocess.run(
+            [sys.executable, "-c", script], capture_output=True, text=True, env=dict(os.environ)
+        )
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        n, wall, peak = proc.stdout.split()
+        return int(n), float(wall), int(peak)
+
+    n_rows, wall, peak = benchmark.pedantic(run, rounds=1, iterations=1)
+    assert n_rows > 10000 * len(METHODS)
+    benchmark.extra_info.update(
+        runs=10000,
+        rows=n_rows,
+        seconds_in_process=wall,
+        peak_rss_bytes=peak,
+        runs_per_second=10000 / wall,
+    )
+    print(
+        f"\n10 000-run cell: {wall:.1f} s in process ({10000 / wall:.0f} runs/s), "
+        f"peak RSS {peak / 2**30:.2f} GiB"
+    )
+    assert peak < 2 * 2**30, f"peak resident memory {peak / 2**30:.2f} GiB >= 2 GiB"

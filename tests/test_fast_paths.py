@@ -1,0 +1,128 @@
+"""The fast paths of issue 7 give the numbers of the plain computations they replace.
+
+Tolerances: 1e-12 relative where the same sums are taken in another order (one Gram matrix
+instead of one per regression, LAPACK instead of the Thomas loop), exact equality where the
+computation is shared rather than reordered (a structure selection reused from the cache).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import signal
+
+from hbench import polyphase as pp
+from hbench.identifiers import IdentifyOptions, identify
+from hbench.plugins import registry
+from tests.helpers import sim
+
+
+@pytest.fixture(scope="module")
+def noisy():
+    return sim(runs=6, seed=21, noise__sigma2=1e-3)
+
+
+def _rows(dy: np.ndarray, reg: pp.QuietRegression) -> tuple[np.ndarray, np.ndarray]:
+    """The regression's rows written out: targets and regressors at its sample times."""
+    lags = np.arange(1, reg.na + 1)
+    return dy[:, reg.t], -dy[:, reg.t[:, None] - lags[None, :]]
+
+
+@pytest.mark.parametrize(("phases", "shift"), [((5,), 0), ((5,), 4), ((3, 4, 5), 3)])
+def test_lag_moments_equal_the_rows_gram(noisy, phases, shift):
+    record, _ = noisy
+    dy = pp.delta(record.y)
+    lm = pp.LagMoments(dy, record.p, 5)
+    for na in (1, 2, 5):
+        reg = pp.quiet_regression(dy, record.p, na, phases, shift, moments=lm)
+        y, phi = _rows(dy, reg)
+        Z = np.concatenate([y[..., None], phi], axis=2)
+        M = np.einsum("rni,rnj->rij", Z, Z) / y.shape[1]
+        np.testing.assert_allclose(reg.all_moments(), M, rtol=1e-12, atol=1e-12 * np.abs(M).max())
+        np.testing.assert_array_equal(reg.target, y)
+        np.testing.assert_array_equal(reg.phi, phi)
+        # every row's lags lie inside the record and after the undefined Delta y(0)
+        assert reg.t.min() - na >= 1 and reg.t.max() < dy.shape[1]
+
+
+def test_residual_from_moments_and_from_rows(noisy):
+    record, _ = noisy
+    dy = pp.delta(record.y)
+    reg = pp.quiet_regression(dy, record.p, 2, (3, 4, 5), 3, moments=pp.LagMoments(dy, 5, 5))
+    theta, _ = pp.bias_compensated(reg)
+    y, phi = _rows(dy, reg)
+    direct = np.mean((y - np.einsum("rni,ri->rn", phi, theta)) ** 2, axis=1)
+    np.testing.assert_allclose(reg.residual_ms(theta), direct, rtol=1e-10)
+
+
+def test_residual_of_noise_free_data_is_recomputed_from_rows():
+    """Noise-free: the exact fit leaves a residual the moments cannot resolve (cancellation)."""
+    record, truth = sim(runs=2, seed=11, noise__sigma2=0.0)
+    dy = pp.delta(record.y)
+    reg = pp.quiet_regression(dy, 5, 2, (5,), 3, moments=pp.LagMoments(dy, 5, 5))
+    res = reg.residual_ms(np.broadcast_to(truth.plant.a[1:], (2, 2)))
+    assert np.all(res < 1e-24), res
+
+
+def test_iv_moments_equal_the_explicit_instruments(noisy):
+    record, _ = noisy
+    dy = pp.delta(record.y)
+    reg = pp.quiet_regression(dy, 5, 2, (3, 4, 5), 3, moments=pp.LagMoments(dy, 5, 5))
+    Z, ok = pp.instruments(record.r, reg.k, 6, 1)
+    y, phi = _rows(dy, reg)
+    Z, y, phi = Z[:, ok], y[:, ok], phi[:, ok]
+    G = (
+        np.concatenate(
+            [np.einsum("rnm,rn->rm", Z, y)[..., None], np.einsum("rnm,rni->rmi", Z, phi)], axis=2
+        )
+        / ok.sum()
+    )
+    np.testing.assert_allclose(pp.iv_moments(reg, record.r, 6, 1), G, rtol=1e-12, atol=1e-15)
+
+
+def test_tridiagonal_lapack_equals_thomas():
+    rng = np.random.default_rng(0)
+    R, M = 7, 50
+    off = 0.3 * rng.standard_normal((R, M - 1))
+    diag = 2.0 + rng.random((R, M))
+    rhs = rng.standard_normal((R, M))
+    x = pp.solve_tridiagonal(off, diag, off, rhs)  # symmetric: LAPACK dptsv
+    np.testing.assert_allclose(x, pp._thomas(off, diag, off, rhs), rtol=1e-12, atol=1e-12)
+    # not positive definite: LAPACK refuses, the Thomas loop still solves it
+    bad = diag.copy()
+    bad[3, 10] = -5.0
+    x = pp.solve_tridiagonal(off, bad, off, rhs)
+    A = np.diag(bad[3]) + np.diag(off[3], 1) + np.diag(off[3], -1)
+    np.testing.assert_allclose(A @ x[3], rhs[3], atol=1e-9)
+
+
+def test_batched_polynomial_tools_match_scipy():
+    rng = np.random.default_rng(4)
+    b = np.concatenate([np.ones((5, 1)), rng.uniform(-1.5, 1.5, (5, 2))], axis=1)
+    a = np.concatenate([np.ones((5, 1)), rng.uniform(-0.5, 0.5, (5, 2))], axis=1)
+    roots = np.array([np.max(np.abs(np.roots(row))) for row in b])
+    np.testing.assert_allclose(pp.max_root_modulus(b), roots, rtol=1e-12)
+    x = rng.standard_normal((5, 40))
+    ref = np.stack([signal.lfilter(b[i], a[i], x[i]) for i in range(5)])
+    np.testing.assert_array_equal(pp.batched_lfilter(b, a, x), ref)
+
+
+def test_methods_share_one_structure_selection(noisy):
+    """wang-iv after wang-lsm on one record reuses the selection: the same estimate as alone."""
+    record, _ = noisy
+    options = IdentifyOptions()
+    iv = registry().get("identifiers", "wang-iv")()
+    alone = identify(iv, sim(runs=6, seed=21, noise__sigma2=1e-3)[0], options)
+    identify(registry().get("identifiers", "wang-lsm")(), record, options)
+    assert any(isinstance(k, tuple) and k[0] == "structure" for k in record.cache)
+    shared = identify(iv, record, options)
+    for field in ("a", "b", "U", "na", "nb", "tau"):
+        np.testing.assert_array_equal(getattr(shared, field), getattr(alone, field), field)
+
+
+def test_record_cache_is_not_shared_with_other_data(noisy):
+    record, _ = noisy
+    identify(registry().get("identifiers", "wang-lsm")(), record, IdentifyOptions())
+    assert record.cache
+    assert record.withhold(frozenset()).cache is record.cache  # same y
+    assert not record.select([0, 1]).cache  # other y: nothing carried over
