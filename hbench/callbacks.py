@@ -4,8 +4,9 @@ Registered in ``hbench/conf/config.yaml`` under ``hydra.callbacks``. ``on_multir
 no job results, so :func:`aggregate_dir` reads the sweep folder: every job folder with a ``DONE``
 marker (one per run id, whatever the job numbering), their ``rows.parquet`` concatenated, sorted
 deterministically and de-duplicated (a run of a method on a cell counts once, even when two jobs
-computed it), then :func:`hbench.results.write_tables` writes ``fitness`` and ``bias`` (.csv, .md,
-.tex) into the folder. A single run aggregates into its own folder the same way.
+computed it), then :func:`hbench.results.write_tables` writes ``fitness``, ``bias`` and
+``structure`` (.csv, .md, .tex) into the folder. A single run aggregates into its own folder the
+same way.
 """
 
 from __future__ import annotations
@@ -74,7 +75,8 @@ def aggregate_dir(root: Path, quiet: bool = False) -> dict[str, Path]:
         plural = "s" if len(jobs) != 1 else ""
         print(
             f"hbench sweep: {len(jobs)} job{plural} aggregated{note}\n"
-            f"  tables: {root / 'fitness.csv'}, {root / 'bias.csv'} (+ .md, .tex)\n"
+            f"  tables: {root / 'fitness.csv'}, {root / 'bias.csv'}, "
+            f"{root / 'structure.csv'} (+ .md, .tex)\n"
             f"  rows:   {root / ROWS}",
             flush=True,
         )

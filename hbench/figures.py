@@ -98,7 +98,14 @@ def render_many(specs: Sequence[FigureSpec], processes: int = 1) -> list[bytes]:
 
 
 #: Relative rendering cost of the figures (load balancing of :func:`render_many`).
-_COST = {"xu_grid": 6, "bias_std_vs_snr": 5, "fitness_vs_snr": 3, "figure4": 2, "figure5": 2}
+_COST = {
+    "xu_grid": 6,
+    "bias_std_vs_snr": 5,
+    "fitness_vs_snr": 3,
+    "figure4": 2,
+    "figure5": 2,
+    "hit_rate_vs_snr": 2,
+}
 
 
 def _log(ax: Any, which: str = "x") -> None:
@@ -379,4 +386,40 @@ def ranking(stats: Any, label: Callable[[str], str]) -> Any:
     ax.set_xlabel("mean rank of fitness over cells (1 = best)")
     ax.set_xlim(0, max(float(s["mean_rank"].max()) + 0.5, 1.5))
     ax.grid(axis="y", visible=False)
+    return fig
+
+
+def hit_rate_vs_snr(stats: Any, label: Callable[[str], str]) -> Any:
+    """Hit rate of the total delay (solid) and of tau (dashed) against mean SNR, one colour per
+    series (beyond the paper: assumption A3 relaxed).
+
+    ``stats`` columns: ``series, snr_mean, delay_hit_rate, tau_hit_rate`` (``series`` names a
+    line: the method, plus its facet when there are several). Infinite SNRs are not drawn.
+    """
+    import numpy as np
+
+    plt = pyplot()
+    series = list(dict.fromkeys(stats["series"]))
+    n_legend = len(series) + 2
+    legend_h = _legend_rows(n_legend)
+    height = 3.4 + legend_h + 0.3
+    fig, ax = plt.subplots(figsize=(6.4, height))
+    fig.subplots_adjust(left=0.12, right=0.97, bottom=0.5 / height)
+    drawn = stats[np.isfinite(stats["snr_mean"])]
+    for i, s in enumerate(series):
+        d = drawn[drawn["series"] == s].sort_values("snr_mean")
+        if d.empty:
+            continue
+        color = f"C{i % 10}"
+        dodge = 1.0 + 0.012 * (i - (len(series) - 1) / 2)  # overlapping lines stay visible
+        x = d["snr_mean"] * dodge
+        ax.plot(x, d["delay_hit_rate"], "o-", color=color, label=label(s))
+        ax.plot(x, d["tau_hit_rate"], "s--", color=color, alpha=0.7, mfc="none")
+    ax.plot([], [], "k-", label="total delay tau + m p")
+    ax.plot([], [], "k--", label="tau only")
+    ax.set_ylim(-0.03, 1.03)
+    _log(ax, "x")
+    ax.set_xlabel(SNR_LABEL)
+    ax.set_ylabel("hit rate (share of runs, -)")
+    _legend_top(fig, ax, legend_h + 0.25)
     return fig

@@ -11,7 +11,9 @@ self-contained ``report.html`` (figures embedded as base64 PNG data URIs, no ext
 the figures as PNG and PDF, and the tables as Markdown and LaTeX (booktabs): ``fitness``,
 ``bias`` (the contract's aggregation), ``ranking`` (mean rank of fitness per cell among the blind
 methods; oracles are bounds, not ranked), ``timing`` (seconds per run). Methods whose class is a
-reconstruction (``reconstruction = True``) are labelled so wherever they appear.
+reconstruction (``reconstruction = True``) are labelled so wherever they appear. When a method of
+the ``hbench_extensions`` plugin package ran, a section "Beyond the paper" follows the tables
+(:mod:`hbench.report_beyond`; its tables ``beyond_*`` are written beside the others).
 """
 
 from __future__ import annotations
@@ -30,7 +32,14 @@ from hbench.errors import InputError
 
 #: Names not in the registry that reports may meet (defined by ``hbench reproduce``).
 EXTRA_LABELS = {"wang-lsm-inv": "wang-lsm-inv (LSM + direct inverse)"}
-FIGURE_IDS = ("fig-fitness-snr", "fig-bias-std-snr", "fig-xu", "fig-time", "fig-ranking")
+FIGURE_IDS = (
+    "fig-fitness-snr",
+    "fig-bias-std-snr",
+    "fig-xu",
+    "fig-time",
+    "fig-ranking",
+    "fig-beyond-delay",
+)
 
 
 # --------------------------------------------------------------------------- inputs
@@ -475,7 +484,7 @@ def build_report(
     figures in forked worker processes; ``extra_figures`` (:data:`hbench.figures.FigureSpec`)
     are rendered in the same batch (the reproduction's Figures 4 and 5).
     """
-    from hbench import figures
+    from hbench import figures, report_beyond
     from hbench.results import aggregate, new_output_dir, to_latex, to_markdown
 
     run_dir = Path(run_dir)
@@ -497,7 +506,8 @@ def build_report(
     for frame in (fitness_table, bias_table, ranking, timing):
         frame.insert(0, "label", frame["method"].map(method_label))
     tables = {"fitness": fitness_table, "bias": bias_table, "ranking": ranking, "timing": timing}
-    for name, table in tables.items():
+    beyond = report_beyond.plan(rows, out, _series_label)
+    for name, table in {**tables, **(beyond.tables if beyond else {})}.items():
         (out / f"{name}.md").write_text(to_markdown(table))
         (out / f"{name}.tex").write_text(to_latex(table, caption=f"hbench {name}"))
 
@@ -547,10 +557,14 @@ def build_report(
                 "bounds and are not ranked).",
             )
         )
-    pngs = figures.render_many([*extra_figures, *(p[1] for p in planned)], jobs)
+    beyond_figures = beyond.figures if beyond else []
+    pngs = figures.render_many(
+        [*extra_figures, *(p[1] for p in planned), *(f[1] for f in beyond_figures)], jobs
+    )
+    pngs = pngs[len(extra_figures) :]
     figs = [
         html_figure(fig_id, png, caption)
-        for (fig_id, _, caption), png in zip(planned, pngs[len(extra_figures) :], strict=True)
+        for (fig_id, _, caption), png in zip(planned, pngs[: len(planned)], strict=True)
     ]
     if not examples:
         figs.insert(
@@ -605,6 +619,7 @@ def build_report(
         "<h3>Bias per parameter</h3>",
         html_table(bias_table, table_id="table-bias"),
         "</section>",
+        beyond.html(pngs[len(planned) :]) if beyond else "",
         '<section id="provenance"><h2>Provenance</h2>',
         _provenance_html(prov, run_dir),
         "</section>",

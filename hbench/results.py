@@ -2,8 +2,10 @@
 
 ``fitness.csv``: one row per (method, nonlinearity, p, delay, sigma2) cell with ``snr_mean, n,
 fitness_mean, fitness_std`` (fitness in %, the paper's gain scaling). ``bias.csv``: one row per
-(method, cell, parameter) with ``true, mean, bias, std, n``. For cells given by a target SNR the
-``sigma2`` column is empty (nan): the level varies by run; the tidy rows keep ``snr_target``.
+(method, cell, parameter) with ``true, mean, bias, std, n``. ``structure.csv`` (hbench's own, not
+the contract's): one row per (method, cell, quantity) for the structure quantities na, nb, tau and
+delay with ``snr_mean, true, hit_rate, n``. For cells given by a target SNR the ``sigma2`` column
+is empty (nan): the level varies by run; the tidy rows keep ``snr_target``.
 """
 
 from __future__ import annotations
@@ -44,47 +46,124 @@ BIAS_COLUMNS = [
     "std",
     "n",
 ]
+STRUCTURE_COLUMNS = [
+    "method",
+    "nonlinearity",
+    "p",
+    "delay",
+    "sigma2",
+    "snr_mean",
+    "quantity",
+    "true",
+    "hit_rate",
+    "n",
+]
+#: Structure quantities of the tidy rows scored by ``structure.csv`` (``delay``: tau + m p).
+STRUCTURE_QUANTITIES = ("na", "nb", "tau", "delay")
+#: An estimate within this of the truth is a hit (the structure quantities are whole numbers).
+HIT_TOLERANCE = 1e-9
 CELL_KEYS = ["method", "nonlinearity", "p", "delay", "sigma2"]
+#: Column of the cell's noise level: sigma2, or -snr_target for a cell given by a target SNR.
+LEVEL = "level"
 
 
 def _is_param(q: pd.Series) -> pd.Series:
     return q.str.fullmatch(r"[ab]\d+")
 
 
-def aggregate(rows: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
+def level_key(rows: pd.DataFrame) -> pd.Series:
+    """The noise level that keys a row's cell: ``sigma2``, or ``-snr_target`` for an SNR cell.
+
+    SNR cells have no sigma2 (the level varies by run); the negative sign keeps them apart
+    from sigma2 cells and from each other.
+    """
+    return rows["sigma2"].where(rows["sigma2"].notna(), -rows["snr_target"])
+
+
+def _by_cell(
+    rows: pd.DataFrame, select: pd.Series, by: tuple[str, ...] = (), **aggs: tuple[str, str]
+) -> pd.DataFrame:
+    """Aggregate the ok rows picked by ``select`` per cell (and ``by``): the tables' one grouping.
+
+    Groups by ``method, nonlinearity, p, delay`` and :func:`level_key` (column :data:`LEVEL`),
+    then ``by``; ``aggs`` are pandas named aggregations. ``sigma2`` is empty for SNR cells.
+    """
+    picked = rows[(select & (rows["status"] == "ok")).to_numpy()]
+    picked = picked.assign(**{LEVEL: level_key(picked)})
+    keys = ["method", "nonlinearity", "p", "delay", LEVEL, *by]
+    table = (
+        picked.groupby(keys, sort=True, dropna=False)
+        .agg(sigma2=("sigma2", "first"), **aggs)
+        .reset_index()
+    )
+    table.loc[table[LEVEL] < 0, "sigma2"] = np.nan
+    return table
+
+
+def aggregate(rows: pd.DataFrame, level: bool = False) -> tuple[pd.DataFrame, pd.DataFrame]:
     """``(fitness, bias)`` tables from tidy rows (failed and not-identifiable runs excluded from
-    the statistics; ``n`` counts the runs that entered them)."""
-    rows = rows.copy()
-    key_sigma = rows["sigma2"].where(rows["sigma2"].notna(), -rows["snr_target"])
-    rows["_k"] = key_sigma  # SNR cells: negative marker keeps them apart from sigma2 cells
-    ok = rows[rows["status"] == "ok"]
-    keys = ["method", "nonlinearity", "p", "delay", "_k"]
-    fit = ok[ok["quantity"] == "fitness"]
-    g = fit.groupby(keys, sort=True, dropna=False)
-    fitness = g.agg(
-        sigma2=("sigma2", "first"),
+    the statistics; ``n`` counts the runs that entered them).
+
+    ``level=True`` appends the column :data:`LEVEL` (:func:`level_key`), which tells SNR cells
+    apart where ``sigma2`` is empty.
+    """
+    q = rows["quantity"]
+    fitness = _by_cell(
+        rows,
+        q == "fitness",
         snr_mean=("snr", "mean"),
         n=("value", "count"),
         fitness_mean=("value", "mean"),
         fitness_std=("value", "std"),
-    ).reset_index()
-    par = ok[_is_param(ok["quantity"])]
-    g = par.groupby([*keys, "quantity"], sort=True, dropna=False)
-    bias = g.agg(
-        sigma2=("sigma2", "first"),
+    )
+    bias = _by_cell(
+        rows,
+        _is_param(q),
+        by=("quantity",),
         true=("true", "first"),
         mean=("value", "mean"),
         std=("value", "std"),
         n=("value", "count"),
-    ).reset_index()
+    )
     bias["bias"] = bias["mean"] - bias["true"]
     bias = bias.rename(columns={"quantity": "parameter"})
-    for t in (fitness, bias):
-        snr_cells = t["_k"] < 0
-        t.loc[snr_cells, "sigma2"] = np.nan
-    fitness = fitness[FITNESS_COLUMNS].reset_index(drop=True)
-    bias = bias[BIAS_COLUMNS].reset_index(drop=True)
+    extra = [LEVEL] if level else []
+    fitness = fitness[FITNESS_COLUMNS + extra].reset_index(drop=True)
+    bias = bias[BIAS_COLUMNS + extra].reset_index(drop=True)
     return fitness, bias
+
+
+def structure(rows: pd.DataFrame, level: bool = False) -> pd.DataFrame:
+    """``structure`` table: how often each cell's runs found the true na, nb, tau and delay.
+
+    Parameters
+    ----------
+    rows : DataFrame
+        Tidy rows (:data:`hbench.schema.TIDY_COLUMNS`).
+    level : bool
+        Append the column :data:`LEVEL` (:func:`level_key`).
+
+    Returns
+    -------
+    DataFrame
+        :data:`STRUCTURE_COLUMNS`: one row per (method, nonlinearity, p, delay, sigma2,
+        quantity) with ``quantity`` in :data:`STRUCTURE_QUANTITIES`, cells keyed as in
+        :func:`aggregate` (SNR cells apart, their ``sigma2`` empty). ``hit_rate`` is the share
+        of the ok runs whose estimate equals ``true`` (within :data:`HIT_TOLERANCE`), ``n`` the
+        number of those runs with an estimate, ``snr_mean`` their mean realised SNR.
+    """
+    err = (rows["value"] - rows["true"]).abs()
+    hit = np.where(err.notna(), (err <= HIT_TOLERANCE).astype(float), np.nan)
+    table = _by_cell(
+        rows.assign(_hit=hit),
+        rows["quantity"].isin(STRUCTURE_QUANTITIES),
+        by=("quantity",),
+        snr_mean=("snr", "mean"),
+        true=("true", "first"),
+        hit_rate=("_hit", "mean"),
+        n=("value", "count"),
+    )
+    return table[STRUCTURE_COLUMNS + ([LEVEL] if level else [])].reset_index(drop=True)
 
 
 def to_markdown(table: pd.DataFrame, floatfmt: str = ".4g") -> str:
@@ -128,11 +207,12 @@ def to_latex(table: pd.DataFrame, caption: str = "", floatfmt: str = ".4g") -> s
 
 
 def write_tables(rows: pd.DataFrame, out: Path) -> dict[str, Path]:
-    """Aggregate ``rows`` and write fitness/bias as CSV, Markdown and LaTeX into ``out``."""
+    """Aggregate ``rows`` and write fitness, bias and structure as CSV, Markdown and LaTeX
+    into ``out``."""
     out.mkdir(parents=True, exist_ok=True)
     fitness, bias = aggregate(rows)
     paths = {}
-    for name, table in (("fitness", fitness), ("bias", bias)):
+    for name, table in (("fitness", fitness), ("bias", bias), ("structure", structure(rows))):
         paths[f"{name}.csv"] = out / f"{name}.csv"
         table.to_csv(paths[f"{name}.csv"], index=False, float_format="%.10g")
         (out / f"{name}.md").write_text(to_markdown(table))

@@ -157,6 +157,8 @@ def test_report_tables_provenance_and_labels(built, sweep_dir):
     assert len(stats["fitness"]) == 3 * len(METHODS)  # two sigma^2 cells and one SNR cell
     ranking = "".join(page.section_text["table-ranking"])
     assert "oracle" not in ranking  # bounds are not ranked
+    # no method of the hbench_extensions package ran: no "Beyond the paper" section
+    assert "beyond" not in ids and not list(path.parent.glob("beyond_*"))
     out = path.parent
     for name in ("fitness", "bias", "ranking", "timing"):
         tex = (out / f"{name}.tex").read_text()
