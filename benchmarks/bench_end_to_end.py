@@ -1,12 +1,13 @@
 """End to end on the paper's example (issue 7): simulate + wang-lsm + wang-iv + bai-fu + oracle +
 metrics + tidy rows, batched, against the naive baseline of ``naive.py`` in the same session.
 
-* ``test_end_to_end[1000]``: :func:`hbench.runner.run_cell` on 1000 runs (one chunk).
+* ``test_end_to_end[jobs]``: :func:`hbench.runner.run_cell` on 1000 runs in batches of 200 (the
+  default chunk), in one process (``jobs=1``) or two forked worker processes (``jobs=2``).
 * ``test_naive_baseline[unbatched]``: the same work one run at a time with hbench's O(K) solve
   (the gain of batching alone); ``[dense]``: one run at a time with eq. (27) solved by dense
   least squares (the issue's "naive baseline written plainly").
-* ``test_peak_memory_10000_runs``: one 10 000-run cell in a fresh process (chunks of 1000 runs);
-  its peak resident memory is recorded and must stay under 2 GB.
+* ``test_peak_memory_10000_runs``: one 10 000-run cell in a fresh process (the default chunks
+  of 200 runs); its peak resident memory is recorded and must stay under 2 GB.
 
 The speed-ups (runs per second of the batched path over each baseline) are printed at the end
 and stored in ``extra_info``; the naive runs are checked to give the batched path's fitness.
@@ -42,22 +43,32 @@ def _batched_fitness(rows) -> dict[str, np.ndarray]:
     return {m: g["value"].to_numpy() for m, g in fit.groupby("method")}
 
 
-def test_end_to_end(benchmark: BenchmarkFixture, paper_scenario: Scenario) -> None:
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_end_to_end(benchmark: BenchmarkFixture, paper_scenario: Scenario, jobs: int) -> None:
     runs = 1000
     methods = methods_from_names(METHODS)
     res = benchmark.pedantic(
         run_cell,
         args=(paper_scenario, methods, runs, SEED),
-        kwargs={"chunk": runs},
+        kwargs={"jobs": jobs},
         rounds=3,
         iterations=1,
         warmup_rounds=1,
     )
     assert len(res.rows) > 0 and (res.rows["status"] == "ok").mean() > 0.99
     rate = runs / benchmark.stats.stats.mean
-    _rate["batched"] = rate
-    _fitness.update(_batched_fitness(res.rows))
-    benchmark.extra_info.update(runs=runs, methods=METHODS, runs_per_second=rate)
+    _rate["batched" if jobs == 1 else f"batched-jobs{jobs}"] = rate
+    if jobs == 1:
+        _fitness.update(_batched_fitness(res.rows))
+    else:  # the same numbers whatever the number of processes
+        for name, f in _batched_fitness(res.rows).items():
+            np.testing.assert_array_equal(f, _fitness[name])
+        benchmark.extra_info["speedup_vs_jobs1"] = rate / _rate["batched"]
+        print(
+            f"\nend to end, {jobs} processes: {rate:.0f} runs/s "
+            f"({rate / _rate['batched']:.2f}x one process)"
+        )
+    benchmark.extra_info.update(runs=runs, methods=METHODS, jobs=jobs, runs_per_second=rate)
 
 
 @pytest.mark.parametrize("kind", list(NAIVE_RUNS))
@@ -93,7 +104,7 @@ _MEMORY_SCRIPT = textwrap.dedent(
     from hbench.runner import methods_from_names, run_cell
     sc = scenarios.build(scenarios.PAPER_SECTION6)
     t0 = time.perf_counter()
-    res = run_cell(sc, methods_from_names({methods!r}), 10000, {seed}, chunk=1000)
+    res = run_cell(sc, methods_from_names({methods!r}), 10000, {seed})
     wall = time.perf_counter() - t0
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
     print(len(res.rows), wall, peak)

@@ -52,7 +52,9 @@ SCENARIO_KEYS = (*PLUGIN_GROUPS, "scenario")
 SCHEMA_NOTE = r"\s*'hydra/launcher/[^']*' is validated against ConfigStore schema"
 warnings.filterwarnings("ignore", message=SCHEMA_NOTE, category=UserWarning)
 #: Top-level keys left out of the run id: where results go does not change them.
-NOT_IN_RUN_ID = ("out",)
+#: Keys whose value does not change a job's numbers: where it writes, and how many runs are
+#: simulated at once and by how many processes (every run draws from its own stream).
+NOT_IN_RUN_ID = ("out", "chunk", "jobs")
 
 
 @dataclass
@@ -95,7 +97,8 @@ class SweepConfig:
     identify: IdentifyConf = field(default_factory=IdentifyConf)
     runs: int = 100
     seed: int = 0
-    chunk: int = 50
+    chunk: int = 200
+    jobs: int = 1
     out: str | None = None
 
 

@@ -295,7 +295,7 @@ def check_config(cfg: Any, where: str = "") -> None:
             f"noise.sigma2 and noise.snr are both set{where}: give one "
             "(noise.snr=X alone switches to SNR mode; or set the other to null)"
         )
-    for key, lo in (("runs", 1), ("chunk", 1), ("seed", 0), ("scenario.p", 1)):
+    for key, lo in (("runs", 1), ("chunk", 1), ("jobs", 1), ("seed", 0), ("scenario.p", 1)):
         value = OmegaConf.select(cfg, key)
         if value < lo:
             raise InputError(f"{key}: must be >= {lo}, got {value}{where}")
@@ -520,6 +520,7 @@ def compute(data: dict[str, Any], progress: Any = None) -> tuple[Any, dict[str, 
             cell=cell,
             chunk=int(data["chunk"]),
             progress=progress,
+            jobs=int(data.get("jobs", 1)),
         )
         rows, failure = result.rows, ""
     except Exception as exc:  # one bad cell must not stop the sweep

@@ -126,3 +126,25 @@ def test_record_cache_is_not_shared_with_other_data(noisy):
     assert record.cache
     assert record.withhold(frozenset()).cache is record.cache  # same y
     assert not record.select([0, 1]).cache  # other y: nothing carried over
+
+
+def test_run_cell_rows_do_not_depend_on_worker_processes():
+    """jobs=2 (forked workers, chunks of 3) gives exactly the rows of one process."""
+    from hbench import scenarios
+    from hbench.runner import methods_from_names, run_cell
+    from tests.helpers import paper_spec
+
+    sc = scenarios.build(paper_spec(duration=60.0))
+    methods = methods_from_names(["wang-lsm", "bai-fu"])
+    key = ["method", "run", "quantity"]
+
+    def rows(**kw):
+        r = run_cell(sc, methods, 6, 5, **kw).rows
+        return r[r["quantity"] != "seconds"].sort_values(key).reset_index(drop=True)
+
+    one = rows()
+    two = rows(jobs=2, chunk=3)
+    assert len(one) == len(two) > 0
+    import pandas as pd
+
+    pd.testing.assert_frame_equal(one, two, check_exact=True)
