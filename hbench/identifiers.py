@@ -12,7 +12,7 @@ The structure selection (Section 6, steps (i)-(iii)) is shared: :func:`select_st
 from __future__ import annotations
 
 from collections.abc import Callable, Hashable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar
 
 import numpy as np
@@ -53,6 +53,10 @@ class IdentifyOptions:
     nb: int | None = None
 
     def __post_init__(self) -> None:
+        # tuples (a list from Python or a config would make the options unhashable)
+        object.__setattr__(self, "na_range", tuple(int(v) for v in self.na_range))
+        if self.tau_range is not None:
+            object.__setattr__(self, "tau_range", tuple(int(v) for v in self.tau_range))
         lo, hi = self.na_range
         if not 1 <= lo <= hi:
             raise InputError(f"na_range must satisfy 1 <= lo <= hi, got {self.na_range}")
@@ -231,6 +235,18 @@ def check_identifiable(p: int, options: IdentifyOptions) -> str:
         return (
             f"not identifiable: p = {p} < n0_b + 1 = {options.nb_max + 1} "
             "(assumption A2; Bai, Li & Dasgupta 2002)"
+        )
+    return ""
+
+
+def check_length(K: int, p: int, options: IdentifyOptions) -> str:
+    """Empty string, or why a record of K slow periods is too short for the quiet regressions."""
+    L = largest_order(options)
+    need = -(-(L + 1) // p) + 3  # the periods before the first full lag window, then 3 rows
+    if K < need:
+        return (
+            f"record too short: {K} controller periods, the regressions of order up to {L} "
+            f"at p = {p} need at least {need}"
         )
     return ""
 
@@ -585,14 +601,22 @@ def blind_fit(
     replaces ``denominator`` for the final estimate once the structure is known.
     ``selection_key`` names the selection estimate (e.g. ``"bias-compensated"``): methods that
     select with the same estimate, rule and options on one record share the selected structure
-    (kept in ``record.cache``) instead of computing the same tables again.
+    (kept in ``record.cache``) instead of computing the same tables again. A method may give a
+    key only for a selection computed from ``y`` alone by the estimate the key names (hbench's
+    keys: ``"bias-compensated"`` for :func:`hbench.polyphase.bias_compensated`, ``"ols"`` for
+    :func:`hbench.polyphase.ols`); anything else must pass ``None``.
     """
     p, R, K = record.p, record.runs, record.n_slow
-    why = check_identifiable(p, options)
+    why = check_identifiable(p, options) or check_length(K, p, options)
     if why:
         return empty_estimate(method, record, why, **(info or {}))
     y = record.y
-    key = None if selection_key is None else ("structure", selection_key, rule, pooled, options)
+    # the selection reads y alone: what the method knows of the delay's multiple plays no part
+    key = (
+        None
+        if selection_key is None
+        else ("structure", selection_key, rule, pooled, replace(options, delay_multiple=0))
+    )
     st = record.cache.get(key) if key is not None else None
     if st is None:
         st = select_structure(y, p, options, selector or denominator, rule, pooled, record.cache)

@@ -270,9 +270,11 @@ def iv_moments(reg: QuietRegression, r: np.ndarray, m: int, lag0: int = 1) -> np
     neither the instrument matrix nor the regressors are copied. Returns ``(runs, m, na + 1)``.
     """
     p, na, K = reg.lm.p, reg.na, r.shape[1]
+    out = np.zeros((r.shape[0], m, na + 1))
+    if K < m:  # no row has all its instruments
+        return out
     win = sliding_window_view(r, m, axis=1)[..., ::-1]  # win[:, j] = r(j + m - 1) .. r(j)
     periods = np.arange(reg.lm.k0, reg.lm.k1 + 1)
-    out = np.zeros((r.shape[0], m, na + 1))
     n = 0
     for l in reg.phases:
         c, carry = divmod(l + reg.shift, p)[::-1]
@@ -402,11 +404,21 @@ def solve_tridiagonal(
     """
     R, M = diag.shape
     if lower is upper and M > 1:
-        e = np.zeros((R, M))
-        e[:, :-1] = lower  # zero coupling between consecutive runs
-        _d, _e, x, info = lapack.dptsv(diag.ravel(), e.ravel()[:-1], rhs.ravel())
-        if info == 0:
-            return x.reshape(R, M)
+        # one system for all runs would let a nan in one run reach every other: finite runs
+        # only, the others by the loop (which keeps their nan to themselves)
+        fin = np.isfinite(diag).all(axis=1) & np.isfinite(rhs).all(axis=1)
+        fin &= np.isfinite(lower).all(axis=1)
+        if fin.any():
+            e = np.zeros((int(fin.sum()), M))
+            e[:, :-1] = lower[fin]  # zero coupling between consecutive runs
+            _d, _e, xf, info = lapack.dptsv(diag[fin].ravel(), e.ravel()[:-1], rhs[fin].ravel())
+            if info == 0:
+                if fin.all():
+                    return xf.reshape(R, M)
+                x = np.empty((R, M))
+                x[fin] = xf.reshape(-1, M)
+                x[~fin] = _thomas(lower[~fin], diag[~fin], lower[~fin], rhs[~fin])
+                return x
     return _thomas(lower, diag, upper, rhs)
 
 
@@ -450,6 +462,8 @@ def simo_system(w: np.ndarray, p: int, shift: int, t_min: int) -> SimoSystem:
     n = np.arange(n0, n1 + 1)
     t = n[:, None] * p + np.arange(1, p + 1)[None, :] + shift
     valid = (t >= t_min) & (t < N)
+    if n.size == 0:
+        return SimoSystem(W=np.zeros((w.shape[0], 0, p)), valid=valid, n0=int(n0))
     # the samples of consecutive periods are consecutive: one slice, reshaped, no gather
     start, M = int(t[0, 0]), n.size
     avail = min(M * p, N - start)

@@ -259,7 +259,15 @@ _FORKED: _Work | None = None
 
 def _forked_chunk(piece: tuple[int, int]) -> tuple[list[pd.DataFrame], dict[str, Any]]:
     assert _FORKED is not None
-    return _run_chunk(_FORKED, *piece)
+    try:
+        return _run_chunk(_FORKED, *piece)
+    except InputError:
+        raise  # hbench's own errors travel back intact (one-line messages, exit status 2)
+    except BaseException as exc:  # an exception that cannot be unpickled would hang the pool
+        raise RuntimeError(
+            f"runs {piece[0]}..{piece[0] + piece[1] - 1} failed in a worker process:\n"
+            + "".join(traceback.format_exception(exc))
+        ) from None
 
 
 def _map_chunks(

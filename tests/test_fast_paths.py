@@ -107,15 +107,29 @@ def test_batched_polynomial_tools_match_scipy():
     np.testing.assert_array_equal(pp.batched_lfilter(b, a, x), ref)
 
 
-def test_methods_share_one_structure_selection(noisy):
-    """wang-iv after wang-lsm on one record reuses the selection: the same estimate as alone."""
-    record, _ = noisy
+def test_methods_share_one_structure_selection(monkeypatch):
+    """wang-iv after wang-lsm on one record reuses the selection (one table computed, not two)
+    and gives the same estimate as alone; bai-fu (OLS selection) computes its own."""
+    from hbench import identifiers
+
+    calls = []
+    original = identifiers.select_structure
+
+    def counting(*args, **kwargs):
+        calls.append(1)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(identifiers, "select_structure", counting)
     options = IdentifyOptions()
     iv = registry().get("identifiers", "wang-iv")()
     alone = identify(iv, sim(runs=6, seed=21, noise__sigma2=1e-3)[0], options)
+    assert len(calls) == 1
+    record, _ = sim(runs=6, seed=21, noise__sigma2=1e-3)
     identify(registry().get("identifiers", "wang-lsm")(), record, options)
-    assert any(isinstance(k, tuple) and k[0] == "structure" for k in record.cache)
     shared = identify(iv, record, options)
+    assert len(calls) == 2  # wang-iv took wang-lsm's selection
+    identify(registry().get("identifiers", "bai-fu")(), record, options)
+    assert len(calls) == 3
     for field in ("a", "b", "U", "na", "nb", "tau"):
         np.testing.assert_array_equal(getattr(shared, field), getattr(alone, field), field)
 
@@ -148,3 +162,50 @@ def test_run_cell_rows_do_not_depend_on_worker_processes():
     import pandas as pd
 
     pd.testing.assert_frame_equal(one, two, check_exact=True)
+
+
+def test_a_non_finite_run_stays_in_its_run():
+    """One run's nan must not reach the others through the one LAPACK call for all runs."""
+    rng = np.random.default_rng(1)
+    R, M = 4, 30
+    off = 0.3 * rng.standard_normal((R, M - 1))
+    diag = 2.0 + rng.random((R, M))
+    rhs = rng.standard_normal((R, M))
+    clean = pp.solve_tridiagonal(off, diag, off, rhs)
+    rhs[1, 5] = np.nan
+    x = pp.solve_tridiagonal(off, diag, off, rhs)
+    assert np.isnan(x[1]).any()
+    np.testing.assert_array_equal(x[[0, 2, 3]], clean[[0, 2, 3]])
+
+
+def test_short_records_and_list_options_give_estimates_not_exceptions():
+    """A record too short for the regressions: every blind method says so in ``reason``."""
+    from hbench.records import Record
+
+    record, _ = sim(runs=2, seed=1, noise__sigma2=1e-3)
+    short = Record(y=record.y[:, :10], x=record.x[:, :2], r=record.r[:, :2], p=5, h=record.h)
+    options = IdentifyOptions(na_range=[1, 4], tau_range=[0, 4])  # lists, as from a config
+    assert options.na_range == (1, 4) and options.tau_range == (0, 4)
+    for name in ("wang-lsm", "wang-iv", "bai-fu", "sun-liu-sano", "wang-iv-opt", "wang-lsm-cn"):
+        est = identify(registry().get("identifiers", name)(), short, options)
+        assert not est.identifiable.any(), name
+        assert "record too short" in est.reason[0], (name, est.reason[0])
+
+
+class _TwoArgError(Exception):
+    def __init__(self, a, b):  # pickles as Exception((a, b)): cannot be rebuilt
+        super().__init__(f"{a} {b}")
+
+
+def test_a_worker_failure_reaches_the_parent(monkeypatch):
+    """An exception that cannot be unpickled must not hang the pool: it comes back as text."""
+    from hbench import runner, scenarios
+    from tests.helpers import paper_spec
+
+    def broken(work, start, n):
+        raise _TwoArgError("plugin", "broke")
+
+    monkeypatch.setattr(runner, "_run_chunk", broken)
+    sc = scenarios.build(paper_spec(duration=60.0))
+    with pytest.raises(RuntimeError, match="plugin broke"):
+        runner.run_cell(sc, runner.methods_from_names(["wang-lsm"]), 4, 0, jobs=2, chunk=2)

@@ -49,7 +49,8 @@ def inverse_inner(choice: str):
         rest = ~use_direct
         if rest.any() and choice != "refuse":
             h0, h1 = pp.simo_channels(b[rest], p)
-            U[rest] = pp.inner_signal_bezout(sys, h0, h1)[:, :M]
+            sys_rest = pp.simo_system(w[rest], p, tau, t_min)
+            U[rest] = pp.inner_signal_bezout(sys_rest, h0, h1)[:, :M]
         if choice == "refuse" and rest.any():
             label = "refused-nmp"  # runs without an estimate get this reason in blind_fit
         elif use_direct.all():
