@@ -13,7 +13,7 @@ import pandas as pd
 import pytest
 
 from hbench import nonlinearities as nl
-from hbench.diagnose import core, generator, stats
+from hbench.diagnose import classes, core, generator, nominal, stats
 from hbench.diagnose.validate import CONTRACT_EFFECTS
 from hbench.plugins import registry
 
@@ -96,6 +96,59 @@ def test_generator_is_deterministic() -> None:
     a = generator.simulate_case(generator.draw_case(3, "drift", "backlash"))
     b = generator.simulate_case(generator.draw_case(3, "drift", "backlash"))
     assert np.array_equal(a.y, b.y) and np.array_equal(a.x, b.x)
+
+
+def test_loop_generator_makes_plant_logs() -> None:
+    case = generator.draw_loop_case(5, "stiction", "flow", "external")
+    a = generator.simulate_loop(case)
+    b = generator.simulate_loop(generator.draw_loop_case(5, "stiction", "flow", "external"))
+    assert a.p == 1 and a.x.shape == (1, 751) and a.y.shape == (1, 751)
+    assert np.array_equal(a.y, b.y) and np.array_equal(a.x, b.x)
+    assert 0.0 <= a.x.min() and a.x.max() <= 100.0  # OP in % of valve travel
+    # the default set covers every valve, loop type and disturbance, half with stiction
+    cases = generator.loop_cases(128)
+    assert {c.cls for c in cases} == set(generator.LOOP_VALVES)
+    assert {(c.loop, c.disturbance) for c in cases} == {
+        (lt, ds) for lt in generator.LOOP_TYPES for ds in generator.LOOP_DISTURBANCES
+    }
+    assert sum(c.cls == "stiction" for c in cases) == 64
+
+
+def test_horch_phase_reads_odd_and_even_correlations() -> None:
+    t = np.arange(600)
+    x = np.sin(2 * np.pi * t / 50)
+    # even: in phase or in anti-phase; odd: a quarter period apart (exact for sinusoids)
+    assert stats.horch_phase(x, x) == pytest.approx(0.0, abs=1e-9)
+    assert stats.horch_phase(x, -x) == pytest.approx(0.0, abs=1e-9)
+    assert stats.horch_phase(x, np.cos(2 * np.pi * t / 50)) == pytest.approx(np.pi, abs=1e-9)
+    # a square-wave output and its integral, the triangular controller output of a sticking
+    # valve under integral action: odd
+    sq = np.sign(np.sin(2 * np.pi * (t + 0.5) / 50))
+    assert stats.horch_phase(np.cumsum(sq), sq) > nominal.HORCH_ODD
+    assert np.isnan(stats.horch_phase(x, np.ones(600)))  # no correlation, no crossing
+
+
+def test_oscillation_verdict() -> None:
+    fits = {
+        c: classes.ClassFit(c, {}, 1.0, 100, 3, score=s)
+        for c, s in (
+            ("linear", 0.0),
+            ("backlash", 4.0),
+            ("deadband", 1.0),
+            ("saturation", 3.5),
+            ("stiction", 5.0),
+        )
+    }
+    quiet = {"stiction": False, "horch_odd": False, "horch_even": False}
+    assert nominal.oscillation_verdict("stiction", fits, dict(quiet)) == "stiction"
+    # an even correlation sets the memory classes aside: the best other class that passes
+    assert nominal.oscillation_verdict("stiction", fits, {**quiet, "horch_even": True}) == (
+        "saturation"
+    )
+    assert nominal.oscillation_verdict("linear", fits, {**quiet, "horch_odd": True}) == "stiction"
+    assert nominal.oscillation_verdict("linear", fits, {**quiet, "stiction": True}) == "stiction"
+    fits["stiction"].score = -1.0  # the triangle alone needs a stiction fit no worse than linear
+    assert nominal.oscillation_verdict("linear", fits, {**quiet, "stiction": True}) == "linear"
 
 
 # --------------------------------------------------------------------------- the command

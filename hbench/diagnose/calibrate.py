@@ -1,5 +1,6 @@
 """Calibration and scoring of the detectors on synthetic records (``python -m
-hbench.diagnose.calibrate``).
+hbench.diagnose.calibrate``), of the stiction verdict on synthetic plant loops (``.. loops``)
+and on the real plant records (``.. real FOLDER``).
 
 ``--effect none --start 5000 --n 200`` prints every detector's statistic on nominal records
 (its largest values set the thresholds in :mod:`hbench.diagnose.effects`); any other effect
@@ -244,7 +245,67 @@ def main_real(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------- synthetic plant loops
+
+
+def run_loop(case: gen.LoopCase) -> dict[str, Any]:
+    """Diagnose the plant-log-like record of ``case`` (``p = 1``) in memory; the stiction
+    verdict against the truth."""
+    from hbench.diagnose.validate import diagnose
+
+    rec = gen.simulate_loop(case)
+    row: dict[str, Any] = {
+        "seed": case.seed,
+        "name": case.name,
+        "loop": case.loop,
+        "cls": case.cls,
+        "disturbance": case.disturbance,
+    }
+    try:
+        d = diagnose(rec, source=case.name)
+        row["found_cls"] = d.nonlinearity["class"]
+    except Exception as exc:
+        row["found_cls"] = f"error: {type(exc).__name__}: {exc}"
+    row["verdict"] = row["found_cls"] == "stiction"
+    return row
+
+
+def loop_verdicts(rows: Sequence[dict[str, Any]]) -> dict[str, tuple[int, int]]:
+    """``(records called stiction, records)`` per true valve class."""
+    out: dict[str, tuple[int, int]] = {}
+    for cls in gen.LOOP_VALVES:
+        sel = [r for r in rows if r["cls"] == cls]
+        out[cls] = (sum(r["verdict"] for r in sel), len(sel))
+    return out
+
+
+def main_loops(argv: Sequence[str] | None = None) -> int:
+    """``python -m hbench.diagnose.calibrate loops [--n N] [--start S] [--jobs J]``: the stiction
+    verdict on synthetic plant loops (:func:`hbench.diagnose.generator.loop_cases`)."""
+    ap = argparse.ArgumentParser(prog="python -m hbench.diagnose.calibrate loops")
+    ap.add_argument("--n", type=int, default=128)
+    ap.add_argument("--start", type=int, default=0)
+    ap.add_argument("--jobs", type=int, default=2)
+    args = ap.parse_args(argv)
+    cases = gen.loop_cases(args.n, args.start)
+    if args.jobs > 1:
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(args.jobs) as pool:
+            rows = list(pool.map(run_loop, cases, chunksize=1))
+    else:
+        rows = [run_loop(c) for c in cases]
+    for r in rows:
+        ok = r["verdict"] == (r["cls"] == "stiction")
+        print(f"{'ok ' if ok else 'BAD'} {r['name']:40s} -> {r['found_cls']}")
+    for cls, (k, n) in loop_verdicts(rows).items():
+        print(f"{cls:11s} called stiction {k}/{n}")
+    return 0
+
+
 if __name__ == "__main__":  # pragma: no cover
     if len(sys.argv) > 1 and sys.argv[1] == "real":
         sys.exit(main_real(sys.argv[2:]))
+    if len(sys.argv) > 1 and sys.argv[1] == "loops":
+        sys.exit(main_loops(sys.argv[2:]))
     sys.exit(main())

@@ -462,3 +462,262 @@ def cases_per_effect(
             out.append(draw_case(start + i, effect, CLASSES[i % len(CLASSES)]))
             i += 1
     return out
+
+
+# --------------------------------------------------------------------------- p = 1 plant loops
+
+#: Loop types of the plant-log-like records (``p = 1``, one sample per controller period).
+LOOP_TYPES: tuple[str, ...] = ("flow", "pressure", "level", "slow")
+#: Valve classes of the plant-log-like records.
+LOOP_VALVES: tuple[str, ...] = ("linear", "stiction", "backlash", "deadband", "saturation")
+#: Disturbance scenarios of the plant-log-like records, each with white measurement noise.
+LOOP_DISTURBANCES: tuple[str, ...] = (
+    "load",  # coloured (AR(1)) load disturbance at the process input
+    "setpoint",  # random set-point moves (steps and a ramp)
+    "external",  # a slow sinusoidal disturbance from outside the loop (not the valve)
+    "drift",  # a slowly drifting operating point (random walk at the process input)
+)
+
+
+@dataclass(frozen=True)
+class LoopCase:
+    """One plant-log-like record's recipe (``p = 1``): a loop type, a PI controller, a valve and
+    a disturbance scenario. Plain data (JSON-ready through :meth:`as_dict`).
+
+    ``plant``: ``a`` (pole; 1 for an integrating level loop), ``k`` (gain, PV units per % of
+    valve), ``delay`` (samples); ``pi``: ``kc``, ``ti`` (samples); ``valve``: the class and its
+    parameters (% of valve travel); ``dist``: the scenario's parameters; ``quant``: the PV's
+    measurement resolution (0: none).
+    """
+
+    seed: int
+    loop: str
+    cls: str
+    disturbance: str
+    plant: dict[str, float]
+    pi: dict[str, float]
+    valve: dict[str, float]
+    dist: dict[str, float]
+    noise: float
+    quant: float
+    K: int = 751
+
+    @property
+    def name(self) -> str:
+        return f"loop{self.seed:04d}_{self.loop}_{self.cls}_{self.disturbance}"
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def draw_loop_case(
+    seed: int, cls: str | None = None, loop: str | None = None, disturbance: str | None = None
+) -> LoopCase:
+    """The plant-log-like case of ``seed`` (``cls``, ``loop``, ``disturbance`` drawn unless given).
+
+    Ranges (``Ts = 10 s``, 751 samples, OP in % of valve travel around 30-70 %):
+
+    * ``flow``: first order, time constant 0.5-3 samples, delay 0-1; PI with ``ti`` 1-4 samples,
+      loop gain ``kc k`` 0.2-0.8.
+    * ``pressure``: first order, time constant 3-15 samples, delay 0-3; ``ti`` 3-20, ``kc k``
+      0.3-1.5.
+    * ``level``: integrating, ``k`` per sample; delay 0-2; ``ti`` 20-80, ``kc k`` 0.02-0.1.
+    * ``slow``: first order, time constant 20-60 samples, delay 2-6; ``ti`` 15-60, ``kc k``
+      0.3-1.
+    * valves: ``stiction`` ``S`` 1-6 % and ``J / S`` 0-1 (so stiction with no slip jump, a dead
+      band, is included); ``backlash`` width 1-5 %; ``deadband`` of 1-3 % either side of the
+      operating point; ``saturation`` at 1-5 % beyond the operating point on one side.
+    * disturbances: ``load``: AR(1) at the process input, pole 0.9-0.99, standard deviation
+      1-4 % of valve; ``setpoint``: steps every 50-250 samples of 0.5-3 % of valve equivalent
+      plus a ramp; ``external``: a sinusoid of period 20-120 samples, amplitude 1-4 % of valve,
+      at the process input, plus a weak AR(1) load; ``drift``: a random walk at the process
+      input reaching 2-8 % of valve.
+    * measurement: white noise of 0.2-1 % of valve equivalent on PV; quantised to 0.2-1 of that
+      noise level in half the records.
+    """
+    rng = np.random.default_rng(np.random.SeedSequence([20250601, seed]))
+    loop = loop if loop is not None else LOOP_TYPES[int(rng.integers(len(LOOP_TYPES)))]
+    cls = cls if cls is not None else LOOP_VALVES[int(rng.integers(len(LOOP_VALVES)))]
+    disturbance = (
+        disturbance
+        if disturbance is not None
+        else LOOP_DISTURBANCES[int(rng.integers(len(LOOP_DISTURBANCES)))]
+    )
+    k = float(rng.uniform(0.3, 3.0))  # PV units per % of valve
+    if loop == "flow":
+        tau, delay = rng.uniform(0.5, 3.0), int(rng.integers(0, 2))
+        ti, lg = rng.uniform(1.0, 4.0), rng.uniform(0.2, 0.8)
+    elif loop == "pressure":
+        tau, delay = rng.uniform(3.0, 15.0), int(rng.integers(0, 4))
+        ti, lg = rng.uniform(3.0, 20.0), rng.uniform(0.3, 1.5)
+    elif loop == "level":
+        tau, delay = np.inf, int(rng.integers(0, 3))
+        ti, lg = rng.uniform(20.0, 80.0), rng.uniform(0.02, 0.1)
+    elif loop == "slow":
+        tau, delay = rng.uniform(20.0, 60.0), int(rng.integers(2, 7))
+        ti, lg = rng.uniform(15.0, 60.0), rng.uniform(0.3, 1.0)
+    else:
+        raise ValueError(f"unknown loop type {loop!r}")
+    a = 1.0 if not np.isfinite(tau) else float(np.exp(-1.0 / tau))
+    plant = {"a": a, "k": k, "delay": float(delay)}
+    pi = {"kc": float(lg / k), "ti": float(ti)}
+    if cls == "linear":
+        valve: dict[str, float] = {}
+    elif cls == "stiction":
+        S = float(rng.uniform(1.0, 6.0))
+        valve = {"S": S, "J": S * float(rng.uniform(0.0, 1.0))}
+    elif cls == "backlash":
+        valve = {"d": float(rng.uniform(1.0, 5.0))}
+    elif cls == "deadband":
+        valve = {"d1": float(rng.uniform(1.0, 3.0)), "d2": float(rng.uniform(1.0, 3.0))}
+    elif cls == "saturation":
+        valve = {"margin": float(rng.uniform(1.0, 5.0)), "side": float(rng.choice([-1.0, 1.0]))}
+    else:
+        raise ValueError(f"unknown valve class {cls!r}")
+    if disturbance == "load":
+        dist = {"pole": float(rng.uniform(0.9, 0.99)), "std": float(rng.uniform(1.0, 4.0))}
+    elif disturbance == "setpoint":
+        dist = {
+            "every": float(rng.uniform(50, 250)),
+            "step": float(rng.uniform(0.5, 3.0)),
+            "ramp": float(rng.uniform(-3.0, 3.0)),
+            "pole": 0.95,
+            "std": float(rng.uniform(0.3, 1.0)),
+        }
+    elif disturbance == "external":
+        dist = {
+            "period": float(rng.uniform(20, 120)),
+            "amplitude": float(rng.uniform(1.0, 4.0)),
+            "pole": 0.95,
+            "std": float(rng.uniform(0.2, 0.6)),
+        }
+    elif disturbance == "drift":
+        dist = {"reach": float(rng.uniform(2.0, 8.0)), "pole": 0.95, "std": 0.3}
+    else:
+        raise ValueError(f"unknown disturbance {disturbance!r}")
+    noise = float(rng.uniform(0.2, 1.0))
+    quant = float(rng.uniform(0.2, 1.0)) * noise if rng.random() < 0.5 else 0.0
+    return LoopCase(seed, loop, cls, disturbance, plant, pi, valve, dist, noise, quant)
+
+
+def _ar1(rng: np.random.Generator, n: int, pole: float, std: float) -> np.ndarray:
+    """An AR(1) series of stationary standard deviation ``std``."""
+    from scipy import signal as sps
+
+    e = rng.standard_normal(n) * std * np.sqrt(1 - pole**2)
+    return sps.lfilter([1.0], [1.0, -pole], e)
+
+
+def simulate_loop(case: LoopCase) -> Record:
+    """The plant log of ``case``: ``x`` the controller output (OP, %), ``y`` the measured
+    process variable, ``r`` the set point; ``p = 1``, ``h = 10 s``. The loop runs 300 samples
+    before the log starts, so the log begins in steady operation."""
+    from hbench import nonlinearities as nls
+
+    rng = np.random.default_rng(np.random.SeedSequence([20250602, case.seed]))
+    warm = 300
+    n = case.K + warm
+    pl, pi, dist = case.plant, case.pi, case.dist
+    a, k, delay = pl["a"], pl["k"], int(pl["delay"])
+    op0 = float(rng.uniform(30.0, 70.0))
+    # disturbances in % of valve at the process input; set point in PV units
+    d_in = np.zeros(n)
+    sp = np.zeros(n)
+    t = np.arange(n)
+    d_in += _ar1(rng, n, dist["pole"], dist["std"])
+    if case.disturbance == "setpoint":
+        level, k0 = 0.0, 0
+        while k0 < n:
+            sp[k0:] = level
+            k0 += int(rng.geometric(1.0 / dist["every"]))
+            level += float(rng.choice([-1.0, 1.0])) * dist["step"] * k
+        sp += dist["ramp"] * k * np.clip((t - warm) / case.K, 0.0, 1.0)
+    elif case.disturbance == "external":
+        ph = rng.uniform(0, 2 * np.pi)
+        d_in += dist["amplitude"] * np.sin(2 * np.pi * t / dist["period"] + ph)
+    elif case.disturbance == "drift":
+        w = np.cumsum(rng.standard_normal(n))
+        w = w - w[warm]
+        d_in += w / max(float(np.max(np.abs(w[warm:]))), 1e-12) * dist["reach"]
+    valve: nls.Nonlinearity
+    if case.cls == "stiction":
+        valve = nls.Stiction(S=case.valve["S"], J=case.valve["J"], u0=op0)
+    elif case.cls == "backlash":
+        valve = nls.Backlash(d=case.valve["d"], u0=op0)
+    else:
+        valve = nls.Linear()
+    state = valve.initial_state(1, np.array([op0]))
+    y = np.zeros(n)  # deviation of PV from its operating value
+    u_hist = np.full(n, op0)
+    x = np.full(n, op0)
+    noise = rng.standard_normal(n) * case.noise * k
+    ym = np.zeros(n)
+    e_prev = 0.0
+    x_prev = op0
+    for i in range(n):
+        if i > 0:
+            j = i - 1 - delay
+            uj = u_hist[j] if j >= 0 else op0
+            dj = d_in[j] if j >= 0 else 0.0
+            if a >= 1.0:
+                y[i] = y[i - 1] + k * (uj - op0 + dj)
+            else:
+                y[i] = a * y[i - 1] + k * (1 - a) * (uj - op0 + dj)
+        ym[i] = y[i] + noise[i]
+        if case.quant > 0:
+            ym[i] = case.quant * k * np.round(ym[i] / (case.quant * k))
+        e = sp[i] - ym[i]
+        xi = x_prev + pi["kc"] * ((e - e_prev) + e / pi["ti"])
+        xi = float(np.clip(xi, 0.0, 100.0))
+        x[i] = xi
+        e_prev, x_prev = e, xi
+        if case.cls in ("stiction", "backlash"):
+            ui, state = valve.step(np.array([xi]), state)
+            u = float(ui[0])
+        elif case.cls == "deadband":
+            lo, hi = op0 - case.valve["d1"], op0 + case.valve["d2"]
+            u = xi - float(np.clip(xi, lo, hi)) + op0
+        elif case.cls == "saturation":
+            lim = op0 + case.valve["side"] * case.valve["margin"]
+            u = min(xi, lim) if case.valve["side"] > 0 else max(xi, lim)
+        else:
+            u = xi
+        u_hist[i] = u
+    pv0 = float(rng.uniform(10.0, 100.0))
+    sl = slice(warm, n)
+    return Record(
+        y=(pv0 + ym[sl])[None, :],
+        x=x[sl][None, :],
+        r=(pv0 + sp[sl])[None, :],
+        p=1,
+        h=10.0,
+        source=case.name,
+        meta={"case": case.as_dict()},
+    )
+
+
+def loop_cases(n: int, start: int = 0) -> list[LoopCase]:
+    """``n`` plant-log-like cases, seed ``start + i``: the valve cycles with ``stiction`` every
+    other record (the others in turn through the rest of :data:`LOOP_VALVES`), then the loop
+    type every 8 records and the disturbance every 32 (every combination in 128 records)."""
+    valves = (
+        "stiction",
+        "linear",
+        "stiction",
+        "backlash",
+        "stiction",
+        "deadband",
+        "stiction",
+        "saturation",
+    )
+    out = []
+    for i in range(n):
+        out.append(
+            draw_loop_case(
+                start + i,
+                valves[i % len(valves)],
+                LOOP_TYPES[(i // 8) % len(LOOP_TYPES)],
+                LOOP_DISTURBANCES[(i // 32) % len(LOOP_DISTURBANCES)],
+            )
+        )
+    return out

@@ -228,8 +228,14 @@ def _shape_rows(d: Any) -> list[tuple[str, str]]:
         f"{sh['period']:.3g} samples, triangularity of x {sh['shape_index']:.3g} (He et "
         "al.'s stiction index)"
     )
+    hp = sh.get("horch_phase", float("nan"))
+    if hp == hp:  # not nan
+        text += (
+            f", Horch's cross-correlation phase {hp:.3g} rad (odd, stiction, above 2.09; even, "
+            "not the valve, below 1.05)"
+        )
     if sh.get("decided"):
-        text += ": a regular oscillation with a triangular controller output; decided stiction"
+        text += ": the oscillation tests decided the class"
     return [("shape test", text)]
 
 

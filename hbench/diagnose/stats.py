@@ -170,3 +170,47 @@ def stiction_index(x: np.ndarray) -> float:
     if e_sin + e_tri <= 0:
         return float("nan")
     return e_sin / (e_sin + e_tri)
+
+
+def cross_correlation(x: np.ndarray, y: np.ndarray, max_lag: int) -> np.ndarray:
+    """Normalised cross-correlation ``c(tau) = sum x(t) y(t + tau) / (||x|| ||y||)`` of the
+    mean-removed series at lags ``-max_lag .. max_lag``."""
+    x = np.asarray(x, float) - np.mean(x)
+    y = np.asarray(y, float) - np.mean(y)
+    n = x.size
+    L = int(min(max_lag, n - 1))
+    den = float(np.linalg.norm(x) * np.linalg.norm(y))
+    if den <= 0:
+        return np.zeros(2 * L + 1)
+    full = np.correlate(y, x, mode="full")  # lag tau at index n - 1 + tau
+    return full[n - 1 - L : n + L] / den
+
+
+def _first_crossing(c: np.ndarray) -> float:
+    """Lag (interpolated, from index 0 of ``c``) where ``c`` first changes sign; nan if never."""
+    s = np.sign(c)
+    s[s == 0] = 1
+    k = np.flatnonzero(s[1:] != s[:-1])
+    if k.size == 0:
+        return float("nan")
+    i = int(k[0])
+    return float(i + c[i] / (c[i] - c[i + 1]))
+
+
+def horch_phase(x: np.ndarray, y: np.ndarray, max_lag: int | None = None) -> float:
+    """Horch (1999) cross-correlation test: the phase ``|dphi|`` in ``[0, pi]`` read from the
+    first zero crossings ``tau_l < 0 < tau_r`` of the controller output ``x`` against the
+    process output ``y``, ``dphi = pi (tau_r + tau_l) / (tau_r - tau_l)``. An even correlation
+    (``|dphi|`` near 0, an extremum at lag 0) is an oscillation from tuning or a disturbance;
+    an odd one (near ``pi``) a sticking valve in a self-regulating loop with integral action.
+    Horch's limits: below ``pi / 3`` no stiction, above ``2 pi / 3`` stiction. nan when the
+    correlation does not cross zero on both sides within ``max_lag`` (default ``n / 4``)."""
+    n = np.asarray(x).size
+    L = int(max_lag if max_lag is not None else n // 4)
+    c = cross_correlation(x, y, L)
+    right = _first_crossing(c[L:])
+    left = _first_crossing(c[L::-1])
+    if not (np.isfinite(right) and np.isfinite(left)):
+        return float("nan")
+    tau_r, tau_l = right, -left
+    return float(abs(np.pi * (tau_r + tau_l) / (tau_r - tau_l)))
