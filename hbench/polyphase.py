@@ -178,7 +178,7 @@ class QuietRegression:
         M = self.all_moments()
         v = np.ones((theta.shape[0], self._na + 1))
         v[:, 1:] = -theta
-        ms = np.einsum("ra,rab,rb->r", v, M, v, optimize=True)
+        ms = np.sum(v * np.matmul(M, v[..., None])[..., 0], axis=1)
         if self.fast:
             return ms
         exact = ms < 1e-6 * M[:, 0, 0]
@@ -480,14 +480,17 @@ def inner_signal_ls(sys: SimoSystem, h0: np.ndarray, h1: np.ndarray) -> np.ndarr
     Row ``(n, i)`` reads ``w_i(n) = h_i(0) U(n) + h_i(1) U(n-1)``. Returns ``U~(n0 - 1 ..)``,
     shape ``(runs, M + 1)``.
     """
-    V = sys.valid.astype(float)  # (M, p)
+    Vt = sys.valid.astype(float).T  # (p, M)
     W = sys.W
     # equation block j couples unknowns j (= U(n-1)) and j+1 (= U(n))
-    a11 = np.einsum("ji,ri->rj", V, h1**2)  # coefficient of U(n-1)^2
-    a22 = np.einsum("ji,ri->rj", V, h0**2)
-    a12 = np.einsum("ji,ri->rj", V, h0 * h1)
-    b1 = np.einsum("rji,ri->rj", W, h1)
-    b2 = np.einsum("rji,ri->rj", W, h0)
+    a11 = (h1**2) @ Vt  # coefficient of U(n-1)^2
+    a22 = (h0**2) @ Vt
+    a12 = (h0 * h1) @ Vt
+    b1 = W[:, :, 0] * h1[:, :1]
+    b2 = W[:, :, 0] * h0[:, :1]
+    for i in range(1, W.shape[2]):  # a loop over the p channels beats einsum's generic path
+        b1 += W[:, :, i] * h1[:, i : i + 1]
+        b2 += W[:, :, i] * h0[:, i : i + 1]
     R, M = a11.shape
     diag = np.zeros((R, M + 1))
     diag[:, :-1] += a11
