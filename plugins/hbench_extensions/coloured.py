@@ -43,6 +43,25 @@ def quiet_autocovariance(
     return gam
 
 
+def b_compensated(dw: np.ndarray, gamma: np.ndarray, p: int, shift: int, nb: int) -> np.ndarray:
+    """Eq. (18) generalised to coloured noise: ``b_l = (E{Dw1 Dwl} - gamma_{l-1}) /
+    (E{Dw1^2} - gamma_0)``, with ``gamma`` the quiet-phase noise autocovariance
+    (:func:`quiet_autocovariance`); white ARX noise gives the paper's ``-2 sigma^2`` and
+    ``+sigma^2``."""
+    t_min = pp.first_valid(dw)
+    k = pp.phase_times(dw.shape[1], p, 1, shift, t_min)
+    k = np.intersect1d(k, pp.phase_times(dw.shape[1], p, nb, shift, t_min))
+    t = k[:, None] * p + np.arange(1, nb + 1)[None, :] + shift
+    D = dw[:, t]
+    d1 = D[:, :, 0]
+    b = np.ones((dw.shape[0], nb))
+    den = np.mean(d1**2, axis=1) - gamma[:, 0]
+    for l in range(2, nb + 1):
+        gl = gamma[:, l - 1] if l - 1 < gamma.shape[1] else 0.0
+        b[:, l - 1] = (np.mean(d1 * D[:, :, l - 1], axis=1) - gl) / den
+    return b
+
+
 def noise_bias(theta: np.ndarray, gamma: np.ndarray) -> np.ndarray:
     """``c_i = E{phi_i eps(t)} = -sum_m h_m gamma_{i+m}``, i = 1..na, h the impulse response of 1/A.
 
@@ -129,19 +148,7 @@ class ColoredNoiseLSM(Identifier):
             return theta, gamma[:, 0] / 2.0
 
         def numerator(dw, tau, nb, sigma2, idx):
-            t_min = pp.first_valid(dw)
-            g = np.stack([gammas[int(i)] for i in idx])
-            k = pp.phase_times(dw.shape[1], p, 1, tau, t_min)
-            k = np.intersect1d(k, pp.phase_times(dw.shape[1], p, nb, tau, t_min))
-            t = k[:, None] * p + np.arange(1, nb + 1)[None, :] + tau
-            D = dw[:, t]
-            d1 = D[:, :, 0]
-            b = np.ones((dw.shape[0], nb))
-            den = np.mean(d1**2, axis=1) - g[:, 0]
-            for l in range(2, nb + 1):
-                gl = g[:, l - 1] if l - 1 < g.shape[1] else 0.0
-                b[:, l - 1] = (np.mean(d1 * D[:, :, l - 1], axis=1) - gl) / den
-            return b
+            return b_compensated(dw, np.stack([gammas[int(i)] for i in idx]), p, tau, nb)
 
         return blind_fit(
             self.name,
