@@ -4,11 +4,11 @@ for the development and the evaluation loops.
 
 Everything that decides the verdict (:data:`hbench.diagnose.nominal.DYNAMIC_MARGIN`,
 :data:`~hbench.diagnose.nominal.SHAPE_INDEX`, the tie rules) was set on the development loops
-only; Horch's cross-correlation limits (:data:`~hbench.diagnose.nominal.HORCH_ODD`,
-:data:`~hbench.diagnose.nominal.HORCH_EVEN`) are the literature's and were checked on the
-development loops and on synthetic plant loops. The counts below were measured once, with the
-design fixed, not tuned on: the evaluation loops were run once for the final design and once
-for the design before it (both 24 of 32: the oscillation tests changed no evaluation record).
+only. The counts below are those of this design, never tuned on. In session 2 the evaluation
+loops were scored for this design and for a variant in which Horch's cross-correlation test
+could decide the class: both 24 of 32, the same verdict on every record. The variant was then
+dropped on synthetic evidence alone (the phase Horch reads is the PI controller's, whatever
+the valve: :func:`hbench.diagnose.nominal.oscillation_verdict`).
 Reproduce the table with ``python -m hbench.diagnose.calibrate real ../shared/data/stictiongpt``.
 """
 

@@ -96,25 +96,27 @@ def test_hidden_effects_confusion_matrix(
     assert gain_ok >= 0.88
 
 
-#: The stiction verdict on the 128 synthetic plant loops of ``generator.loop_cases(128)``
-#: (p = 1; flow, pressure, level and slow loops under PI control with load, set-point,
-#: outside-oscillation and drift disturbances), records called ``stiction`` per true valve,
-#: as measured once with the final design (``python -m hbench.diagnose.calibrate loops``).
-#: Before the cross-correlation test was added the counts were stiction 14, linear 3,
-#: backlash 3, deadband 1, saturation 1. Most sticking valves here are hidden by the
-#: disturbances (the verdict is a check against false alarms more than a detection rate).
+#: The stiction verdict on 128 synthetic plant loops held out from every design choice
+#: (``generator.loop_cases(128, start=1000)``; seeds 0-127 were looked at while designing):
+#: p = 1; flow, pressure, level and slow loops under PI control with load, set-point,
+#: outside-oscillation and drift disturbances; records called ``stiction`` per true valve, as
+#: measured once (``python -m hbench.diagnose.calibrate loops --start 1000``). Most sticking
+#: valves here are hidden by the disturbances: the verdict is a check against false alarms
+#: more than a detection rate.
+LOOP_START = 1000
 LOOP_CALLED_STICTION = {
-    "stiction": (15, 64),
-    "linear": (2, 16),
-    "backlash": (4, 16),
-    "deadband": (2, 16),
-    "saturation": (1, 16),
+    "stiction": (9, 64),
+    "linear": (4, 16),
+    "backlash": (2, 16),
+    "deadband": (0, 16),
+    "saturation": (2, 16),
 }
 
 
 @pytest.mark.slow
 def test_stiction_verdict_on_synthetic_plant_loops(capsys: pytest.CaptureFixture[str]) -> None:
-    rows = [calibrate.run_loop(c) for c in generator.loop_cases(128)]
+    rows = [calibrate.run_loop(c) for c in generator.loop_cases(128, start=LOOP_START)]
+    assert not [r["name"] for r in rows if r["error"]]  # a crash must not pass for a "no"
     found = calibrate.loop_verdicts(rows)
     with capsys.disabled():
         print("\nstiction verdict on 128 synthetic plant loops (called stiction / records):")

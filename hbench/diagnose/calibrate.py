@@ -266,6 +266,7 @@ def run_loop(case: gen.LoopCase) -> dict[str, Any]:
         row["found_cls"] = d.nonlinearity["class"]
     except Exception as exc:
         row["found_cls"] = f"error: {type(exc).__name__}: {exc}"
+    row["error"] = str(row["found_cls"]).startswith("error:")
     row["verdict"] = row["found_cls"] == "stiction"
     return row
 

@@ -524,9 +524,9 @@ def draw_loop_case(
     * ``level``: integrating, ``k`` per sample; delay 0-2; ``ti`` 20-80, ``kc k`` 0.02-0.1.
     * ``slow``: first order, time constant 20-60 samples, delay 2-6; ``ti`` 15-60, ``kc k``
       0.3-1.
-    * valves: ``stiction`` ``S`` 1-6 % and ``J / S`` 0-1 (so stiction with no slip jump, a dead
-      band, is included); ``backlash`` width 1-5 %; ``deadband`` of 1-3 % either side of the
-      operating point; ``saturation`` at 1-5 % beyond the operating point on one side.
+    * valves: ``stiction`` ``S`` 1-6 % and ``J / S`` 0.15-1 (below ``nominal.MIN_JUMP_SHARE``
+      stiction is a dead band); ``backlash`` width 1-5 %; ``deadband`` of 1-3 % either side of
+      the operating point; ``saturation`` at 1-5 % beyond the operating point on one side.
     * disturbances: ``load``: AR(1) at the process input, pole 0.9-0.99, standard deviation
       1-4 % of valve; ``setpoint``: steps every 50-250 samples of 0.5-3 % of valve equivalent
       plus a ramp; ``external``: a sinusoid of period 20-120 samples, amplitude 1-4 % of valve,
@@ -536,13 +536,15 @@ def draw_loop_case(
       noise level in half the records.
     """
     rng = np.random.default_rng(np.random.SeedSequence([20250601, seed]))
-    loop = loop if loop is not None else LOOP_TYPES[int(rng.integers(len(LOOP_TYPES)))]
-    cls = cls if cls is not None else LOOP_VALVES[int(rng.integers(len(LOOP_VALVES)))]
-    disturbance = (
-        disturbance
-        if disturbance is not None
-        else LOOP_DISTURBANCES[int(rng.integers(len(LOOP_DISTURBANCES)))]
+    # always drawn, then overridden: a given class leaves the other parameters as drawn
+    drawn = (
+        LOOP_TYPES[int(rng.integers(len(LOOP_TYPES)))],
+        LOOP_VALVES[int(rng.integers(len(LOOP_VALVES)))],
+        LOOP_DISTURBANCES[int(rng.integers(len(LOOP_DISTURBANCES)))],
     )
+    loop = loop if loop is not None else drawn[0]
+    cls = cls if cls is not None else drawn[1]
+    disturbance = disturbance if disturbance is not None else drawn[2]
     k = float(rng.uniform(0.3, 3.0))  # PV units per % of valve
     if loop == "flow":
         tau, delay = rng.uniform(0.5, 3.0), int(rng.integers(0, 2))
@@ -565,7 +567,8 @@ def draw_loop_case(
         valve: dict[str, float] = {}
     elif cls == "stiction":
         S = float(rng.uniform(1.0, 6.0))
-        valve = {"S": S, "J": S * float(rng.uniform(0.0, 1.0))}
+        # J >= 0.15 S: with no slip jump stiction is a dead band (backlash), scored as such
+        valve = {"S": S, "J": S * float(rng.uniform(0.15, 1.0))}
     elif cls == "backlash":
         valve = {"d": float(rng.uniform(1.0, 5.0))}
     elif cls == "deadband":

@@ -26,9 +26,8 @@ evidence conflicts, the real records weigh more, so the whole record decides.
 
 Oscillating plant loops (``p = 1``, Thornhill's regularity ``r > 1``) also get the literature's
 stiction tests, with the literature's limits, none tuned here (:func:`shape_test`): He et al.'s
-curve fitting (a triangular controller output) and Horch's cross-correlation test (an odd
-correlation between controller output and process output is a sticking valve; an even one an
-oscillation from tuning or an outside disturbance, which vetoes the memory classes).
+curve fitting (a triangular controller output), which can name stiction, and Horch's
+cross-correlation phase, reported as evidence only (see :func:`oscillation_verdict`).
 """
 
 from __future__ import annotations
@@ -515,22 +514,17 @@ def oscillation_verdict(
 ) -> str:
     """The class of a plant loop once the oscillation tests of :func:`shape_test` are heard.
 
-    An even cross-correlation (Horch) says the oscillation does not come from the valve: the
-    memory classes are set aside and the class is chosen among the others
-    (:func:`choose_dynamic`). Otherwise a triangular controller output (He et al., when the
-    stiction fit is no worse than linear) or an odd cross-correlation (Horch) names stiction
-    where the fit through the dynamics did not resolve it. ``shape["decided"]`` records
-    whether the tests changed the class.
+    A triangular controller output (He et al.) names stiction when the stiction fit through the
+    dynamics is no worse than linear and the fit chose another class. Horch's phase is
+    reported as evidence but decides nothing: on the synthetic plant loops
+    (:func:`hbench.diagnose.generator.loop_cases`) the phase it measures is that of the PI
+    controller at the oscillation frequency, ``2 atan(1 / (w Ti))``, whatever the valve (an
+    outside oscillation on a fast flow loop reads "odd"; a sticking level valve can read
+    "even"), and letting it decide changed no development verdict. ``shape["decided"]``
+    records whether the shape test changed the class.
     """
     new = chosen
-    if shape["horch_even"]:
-        if chosen in ("stiction", "backlash"):
-            new = choose_dynamic(
-                {c: f for c, f in fits.items() if c not in ("stiction", "backlash")}
-            )
-    elif chosen != "stiction" and (
-        (shape["stiction"] and fits["stiction"].score >= 0.0) or shape["horch_odd"]
-    ):
+    if chosen != "stiction" and shape["stiction"] and fits["stiction"].score >= 0.0:
         new = "stiction"
     shape["decided"] = new != chosen
     return new

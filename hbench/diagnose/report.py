@@ -230,12 +230,15 @@ def _shape_rows(d: Any) -> list[tuple[str, str]]:
     )
     hp = sh.get("horch_phase", float("nan"))
     if hp == hp:  # not nan
+        from hbench.diagnose.nominal import HORCH_EVEN, HORCH_ODD
+
         text += (
-            f", Horch's cross-correlation phase {hp:.3g} rad (odd, stiction, above 2.09; even, "
-            "not the valve, below 1.05)"
+            f", Horch's cross-correlation phase {hp:.3g} rad (his limits: odd, stiction, above "
+            f"{HORCH_ODD:.3g}; even, not the valve, below {HORCH_EVEN:.3g}; evidence only: it "
+            "also carries the controller's phase)"
         )
     if sh.get("decided"):
-        text += ": the oscillation tests decided the class"
+        text += ": the shape test decided the class"
     return [("shape test", text)]
 
 

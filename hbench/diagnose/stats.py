@@ -177,6 +177,8 @@ def cross_correlation(x: np.ndarray, y: np.ndarray, max_lag: int) -> np.ndarray:
     mean-removed series at lags ``-max_lag .. max_lag``."""
     x = np.asarray(x, float) - np.mean(x)
     y = np.asarray(y, float) - np.mean(y)
+    if x.size != y.size:
+        raise ValueError(f"x and y differ in length ({x.size} and {y.size})")
     n = x.size
     L = int(min(max_lag, n - 1))
     den = float(np.linalg.norm(x) * np.linalg.norm(y))
@@ -213,4 +215,6 @@ def horch_phase(x: np.ndarray, y: np.ndarray, max_lag: int | None = None) -> flo
     if not (np.isfinite(right) and np.isfinite(left)):
         return float("nan")
     tau_r, tau_l = right, -left
+    if tau_r == tau_l:  # both crossings at lag 0: no phase to read
+        return float("nan")
     return float(abs(np.pi * (tau_r + tau_l) / (tau_r - tau_l)))
