@@ -118,14 +118,12 @@ class QuietRegression:
         self.dy, self.lm, self.fast = dy, lm, fast
         self.phases, self.shift = tuple(int(l) for l in phases), int(shift)
         self._na = int(na)
+        #: per phase: the residue class ``c = t mod p`` of its samples and the periods ``carry``
+        #: between the slow index ``k`` of the paper's numbering and the period of ``t``
+        self.classes = [((l + self.shift) % p, (l + self.shift) // p) for l in self.phases]
         periods = np.arange(lm.k0, lm.k1 + 1)
-        ts, ks = [], []
-        for l in self.phases:
-            c, carry = divmod(l + self.shift, p)[::-1]
-            ts.append(periods * p + c)
-            ks.append(periods - carry)
-        self.t = np.concatenate(ts)
-        self.k = np.concatenate(ks)
+        self.t = np.concatenate([periods * p + c for c, _ in self.classes])
+        self.k = np.concatenate([periods - carry for _, carry in self.classes])
         self._cache: dict[str, np.ndarray] = {}
 
     @property
@@ -154,8 +152,7 @@ class QuietRegression:
     def all_moments(self) -> np.ndarray:
         """``(1/n) sum z z^T`` with ``z = [Delta y(t), phi(t)]``: the mean of the phases' blocks."""
         if "M" not in self._cache:
-            p = self.lm.p
-            M = sum(self.lm.block((l + self.shift) % p, self._na) for l in self.phases)
+            M = sum(self.lm.block(c, self._na) for c, _ in self.classes)
             M = M / len(self.phases)
             sign = np.ones(self._na + 1)
             sign[1:] = -1.0
@@ -276,8 +273,7 @@ def iv_moments(reg: QuietRegression, r: np.ndarray, m: int, lag0: int = 1) -> np
     win = sliding_window_view(r, m, axis=1)[..., ::-1]  # win[:, j] = r(j + m - 1) .. r(j)
     periods = np.arange(reg.lm.k0, reg.lm.k1 + 1)
     n = 0
-    for l in reg.phases:
-        c, carry = divmod(l + reg.shift, p)[::-1]
+    for c, carry in reg.classes:
         k = periods - carry
         ok = (k - lag0 - m + 1 >= 0) & (k - lag0 < K)
         if not ok.any():
@@ -321,7 +317,8 @@ def filtered_output(y: np.ndarray, a: np.ndarray) -> np.ndarray:
     return w
 
 
-def _common_periods(dw: np.ndarray, p: int, shift: int, t_min: int, nb: int) -> np.ndarray:
+def common_periods(dw: np.ndarray, p: int, shift: int, t_min: int, nb: int) -> np.ndarray:
+    """Slow indices k whose phases 1 .. nb all have a defined sample (the numerator's rows)."""
     k = phase_times(dw.shape[1], p, 1, shift, t_min)
     k_last = phase_times(dw.shape[1], p, nb, shift, t_min)
     return np.intersect1d(k, k_last)
@@ -329,7 +326,7 @@ def _common_periods(dw: np.ndarray, p: int, shift: int, t_min: int, nb: int) -> 
 
 def phase_variances(dw: np.ndarray, p: int, shift: int, t_min: int) -> np.ndarray:
     """``Var{Delta w^(l)}``, l = 1..p (the paper's Table 2): mean square over common periods."""
-    k = _common_periods(dw, p, shift, t_min, p)
+    k = common_periods(dw, p, shift, t_min, p)
     t = k[:, None] * p + np.arange(1, p + 1)[None, :] + shift
     return np.mean(dw[:, t] ** 2, axis=1)
 
@@ -344,7 +341,7 @@ def b_lsm(
     ``E{Delta e(kp+1) Delta e(kp+2)} = -sigma^2`` and ``E{Delta e^2} = 2 sigma^2`` give those signs.
     Returns ``(runs, nb)`` with ``b1 = 1``.
     """
-    k = _common_periods(dw, p, shift, t_min, nb)
+    k = common_periods(dw, p, shift, t_min, nb)
     t = k[:, None] * p + np.arange(1, nb + 1)[None, :] + shift
     D = dw[:, t]  # (R, n, nb)
     d1 = D[:, :, 0]
@@ -365,7 +362,7 @@ def b_iv(
     dw: np.ndarray, r: np.ndarray, p: int, shift: int, nb: int, m: int, t_min: int, lag0: int = 1
 ) -> np.ndarray:
     """Eq. (21): ``b_l = [(1/K) sum zeta dw1]^+ (1/K) sum zeta dwl``, ``zeta(k) = r(k-1..k-m)``."""
-    k = _common_periods(dw, p, shift, t_min, nb)
+    k = common_periods(dw, p, shift, t_min, nb)
     Z, ok = instruments(r, k, m, lag0)
     k, Z = k[ok], Z[:, ok]
     t = k[:, None] * p + np.arange(1, nb + 1)[None, :] + shift

@@ -122,6 +122,26 @@ def paper_data() -> dict[str, Any]:
     return json.loads(text)
 
 
+#: The investigation table's columns as shown (summary and report).
+INVESTIGATION_COLUMNS = (
+    "alternative",
+    "group",
+    "mean_abs_z_before",
+    "mean_abs_z_after",
+    "T4-params_after",
+    "T4-snr_after",
+    "T5_after",
+    "T1_after",
+    "T2_after",
+    "std_ratio_T4-params_after",
+    "std_ratio_T5_after",
+    "within2_after",
+    "cells_closer",
+    "cells_further",
+    "moved_most",
+)
+
+
 def parse_printed(text: str | None) -> tuple[float, float]:
     """``(value, unit)`` of a printed number: ``"0.9623" -> (0.9623, 1e-4)``, ``"inf" -> (inf, 0)``.
 
@@ -1320,25 +1340,7 @@ def investigate(
         )
     table = pd.DataFrame(records)
     table.to_csv(out / "investigation.csv", index=False, float_format="%.6g")
-    show = table[
-        [
-            "alternative",
-            "group",
-            "mean_abs_z_before",
-            "mean_abs_z_after",
-            "T4-params_after",
-            "T4-snr_after",
-            "T5_after",
-            "T1_after",
-            "T2_after",
-            "std_ratio_T4-params_after",
-            "std_ratio_T5_after",
-            "within2_after",
-            "cells_closer",
-            "cells_further",
-            "moved_most",
-        ]
-    ]
+    show = table[list(INVESTIGATION_COLUMNS)]
     base_line = table.iloc[0]
     text = [
         "# Investigation: what moves the reproduction toward the paper",

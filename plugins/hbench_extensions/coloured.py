@@ -48,9 +48,7 @@ def b_compensated(dw: np.ndarray, gamma: np.ndarray, p: int, shift: int, nb: int
     (E{Dw1^2} - gamma_0)``, with ``gamma`` the quiet-phase noise autocovariance
     (:func:`quiet_autocovariance`); white ARX noise gives the paper's ``-2 sigma^2`` and
     ``+sigma^2``."""
-    t_min = pp.first_valid(dw)
-    k = pp.phase_times(dw.shape[1], p, 1, shift, t_min)
-    k = np.intersect1d(k, pp.phase_times(dw.shape[1], p, nb, shift, t_min))
+    k = pp.common_periods(dw, p, shift, pp.first_valid(dw), nb)
     t = k[:, None] * p + np.arange(1, nb + 1)[None, :] + shift
     D = dw[:, t]
     d1 = D[:, :, 0]
@@ -123,7 +121,6 @@ class ColoredNoiseLSM(Identifier):
         self, record: Record, options: IdentifyOptions, truth: Truth | None = None
     ) -> Estimate:
         p = record.p
-        dy_all = pp.delta(record.y)
         gammas: dict[int, np.ndarray] = {}
 
         def denominator(reg: pp.QuietRegression, idx: np.ndarray):
@@ -137,7 +134,7 @@ class ColoredNoiseLSM(Identifier):
             J = len(phases) - 1 if self.lags is None else min(self.lags, len(phases) - 1)
             gamma = np.zeros((idx.size, J + 1))
             for _ in range(self.iterations):
-                gamma = quiet_autocovariance(dy_all[idx], theta, p, phases, tau, J)
+                gamma = quiet_autocovariance(reg.dy, theta, p, phases, tau, J)
                 new = np.einsum("rik,rk->ri", Rinv, f - noise_bias(theta, gamma))
                 change = np.max(np.abs(new - theta)) / max(np.max(np.abs(theta)), 1e-300)
                 theta = new

@@ -8,7 +8,14 @@ import numpy as np
 
 from hbench import polyphase as pp
 from hbench.errors import InputError
-from hbench.identifiers import Estimate, Identifier, IdentifyOptions, SelectionRule, blind_fit
+from hbench.identifiers import (
+    Estimate,
+    Identifier,
+    IdentifyOptions,
+    SelectionRule,
+    blind_fit,
+    largest_order,
+)
 from hbench.records import Record, Truth
 
 from .coloured import b_compensated, quiet_autocovariance
@@ -64,23 +71,23 @@ def gmm_iv(
     """
     if weighting not in WEIGHTINGS:
         raise InputError(f"weighting must be one of {', '.join(WEIGHTINGS)}, got {weighting!r}")
-    Z, ok = pp.instruments(r, reg.k, m, lag0)
-    Z, phi, y, k = Z[:, ok], reg.phi[:, ok], reg.target[:, ok], reg.k[ok]
-    n = max(int(ok.sum()), 1)
-    Rzp = np.einsum("rjm,rji->rmi", Z, phi) / n
-    fz = np.einsum("rjm,rj->rm", Z, y) / n
     if weighting == "identity":
-        return np.einsum("rim,rm->ri", np.linalg.pinv(Rzp, rcond=1e-12), fz), np.broadcast_to(
-            np.eye(Z.shape[2]), (Z.shape[0], Z.shape[2], Z.shape[2])
-        )
-    W = np.linalg.pinv(np.matmul(Z.transpose(0, 2, 1), Z) / n, hermitian=True)
+        return pp.iv(reg, r, m, lag0), np.broadcast_to(np.eye(m), (r.shape[0], m, m))
+    G = pp.iv_moments(reg, r, m, lag0)  # the moments of eq. (20), as pp.iv forms them
+    Rzp, fz = G[:, :, 1:], G[:, :, 0]
+    Z, ok = pp.instruments(r, reg.k, m, lag0)
+    Z = Z[:, ok]
+    n = max(int(ok.sum()), 1)
+    ZZ = np.matmul(Z.transpose(0, 2, 1), Z) / n
+    W = np.linalg.pinv(ZZ, hermitian=True)
     theta = _weighted_solve(Rzp, fz, W)
     if weighting == "optimal":
-        eps = y - np.einsum("rji,ri->rj", phi, theta)
-        S = moment_covariance(Z * eps[..., None], k, bandwidth)
+        y = reg.target[:, ok]
+        eps = y - np.einsum("rji,ri->rj", reg.phi[:, ok], theta)
+        S = moment_covariance(Z * eps[..., None], reg.k[ok], bandwidth)
         # noise-free (or nearly): the moments vanish with the residuals and S carries no
         # information; keep the first step there
-        scale = np.einsum("rmm->r", np.matmul(Z.transpose(0, 2, 1), Z) / n) * np.mean(y**2, axis=1)
+        scale = np.einsum("rmm->r", ZZ) * np.mean(y**2, axis=1)
         informative = np.einsum("rmm->r", S) > 1e-20 * scale
         if informative.any():
             W = W.copy()
@@ -98,8 +105,7 @@ def b_gmm(
     ``g = (1/K) sum zeta Delta w^(1)`` and ``c_l = (1/K) sum zeta Delta w^(l)`` over the periods
     where every active phase is defined.
     """
-    k = pp.phase_times(dw.shape[1], p, 1, shift, t_min)
-    k = np.intersect1d(k, pp.phase_times(dw.shape[1], p, nb, shift, t_min))
+    k = pp.common_periods(dw, p, shift, t_min, nb)
     Z, ok = pp.instruments(r, k, m, lag0)
     k, Z = k[ok], Z[:, ok]
     n = max(k.size, 1)
@@ -196,7 +202,7 @@ class OptimalIV(Identifier):
         self, record: Record, options: IdentifyOptions, truth: Truth | None = None
     ) -> Estimate:
         r = record.r
-        m = max(self.m, options.na_range[1] if options.na is None else options.na)
+        m = max(self.m, largest_order(options))
 
         def denominator(reg: pp.QuietRegression, idx: np.ndarray):
             theta, _ = gmm_iv(reg, r[idx], m, self.lag0, self.weighting, self.bandwidth)
@@ -205,16 +211,13 @@ class OptimalIV(Identifier):
         def selector(reg: pp.QuietRegression, idx: np.ndarray):
             return pp.bias_compensated(reg)
 
-        dy_all = pp.delta(record.y)
         gammas: dict[int, np.ndarray] = {}
 
         def refine(reg: pp.QuietRegression, idx: np.ndarray, tau: int, nb: int):
             theta, s2 = denominator(reg, idx)
             if self.numerator == "compensated":
                 phases = tuple(range(nb + 1, record.p + 1))
-                gamma = quiet_autocovariance(
-                    dy_all[idx], theta, record.p, phases, tau, len(phases) - 1
-                )
+                gamma = quiet_autocovariance(reg.dy, theta, record.p, phases, tau, len(phases) - 1)
                 for j, i in enumerate(idx):
                     gammas[int(i)] = gamma[j]
             return theta, s2

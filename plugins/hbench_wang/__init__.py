@@ -23,6 +23,7 @@ from hbench.identifiers import (
     IdentifyOptions,
     SelectionRule,
     blind_fit,
+    largest_order,
 )
 from hbench.records import Record, Truth
 
@@ -126,7 +127,7 @@ class WangIV(_Wang):
         self, record: Record, options: IdentifyOptions, truth: Truth | None = None
     ) -> Estimate:
         r = record.r
-        m = max(self.m, options.na_range[1] if options.na is None else options.na)
+        m = max(self.m, largest_order(options))
 
         def denominator(reg: pp.QuietRegression, idx: np.ndarray):
             theta = pp.iv(reg, r[idx], m, self.lag0)
