@@ -11,7 +11,7 @@ The structure selection (Section 6, steps (i)-(iii)) is shared: :func:`select_st
 
 from __future__ import annotations
 
-from collections.abc import Callable, Hashable, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar
 
@@ -395,6 +395,25 @@ def _select_nb(
 DenominatorFit = Callable[[pp.QuietRegression, np.ndarray], tuple[np.ndarray, np.ndarray]]
 
 
+def bias_compensated_fit(reg: pp.QuietRegression, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eqs. (14)-(15) as a :data:`DenominatorFit` (the LSM's estimate and selection)."""
+    return pp.bias_compensated(reg)
+
+
+def ols_fit(reg: pp.QuietRegression, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Ordinary LS of eq. (13) as a :data:`DenominatorFit`; sigma^2 as half the residual mean
+    square (Bai & Fu's estimate and selection)."""
+    theta, s2, _ = pp.ols(reg)
+    return theta, s2 / 2.0
+
+
+def _reads_the_regression_only(fit: Callable[..., Any]) -> bool:
+    """A module-level function, no closure: what it computes depends on its arguments alone."""
+    return getattr(fit, "__closure__", True) is None and "<locals>" not in getattr(
+        fit, "__qualname__", "<locals>"
+    )
+
+
 def largest_order(options: IdentifyOptions) -> int:
     """The largest denominator order a method may fit under ``options``."""
     return int(options.na) if options.na is not None else int(options.na_range[1])
@@ -590,7 +609,6 @@ def blind_fit(
     info: dict[str, Any] | None = None,
     selector: DenominatorFit | None = None,
     refine: Callable[..., tuple[np.ndarray, np.ndarray]] | None = None,
-    selection_key: Hashable | None = None,
 ) -> Estimate:
     """The blind route shared by the methods: structure, A, B, A4 check, U, alignment with x.
 
@@ -599,27 +617,27 @@ def blind_fit(
     ``selector`` is the denominator estimate used for the structure selection (default: the
     method's own ``denominator``). ``refine(reg, idx, tau, nb) -> (theta, sigma2)``, when given,
     replaces ``denominator`` for the final estimate once the structure is known.
-    ``selection_key`` names the selection estimate (e.g. ``"bias-compensated"``): methods that
-    select with the same estimate, rule and options on one record share the selected structure
-    (kept in ``record.cache``) instead of computing the same tables again. A method may give a
-    key only for a selection computed from ``y`` alone by the estimate the key names (hbench's
-    keys: ``"bias-compensated"`` for :func:`hbench.polyphase.bias_compensated`, ``"ols"`` for
-    :func:`hbench.polyphase.ols`); anything else must pass ``None``.
+    Methods whose selection estimate is the same module-level function (e.g.
+    :func:`bias_compensated_fit`, :func:`ols_fit`), with the same rule and options, share the
+    selected structure on one record (kept in ``record.cache``) instead of computing the same
+    tables again: such a function sees the regression (built from ``y``) and nothing else. A
+    closure may read more (the reference, say) and is never shared.
     """
     p, R, K = record.p, record.runs, record.n_slow
     why = check_identifiable(p, options) or check_length(K, p, options)
     if why:
         return empty_estimate(method, record, why, **(info or {}))
     y = record.y
+    fit = selector or denominator
     # the selection reads y alone: what the method knows of the delay's multiple plays no part
     key = (
-        None
-        if selection_key is None
-        else ("structure", selection_key, rule, pooled, replace(options, delay_multiple=0))
+        ("structure", fit, rule, pooled, replace(options, delay_multiple=0))
+        if _reads_the_regression_only(fit)
+        else None
     )
     st = record.cache.get(key) if key is not None else None
     if st is None:
-        st = select_structure(y, p, options, selector or denominator, rule, pooled, record.cache)
+        st = select_structure(y, p, options, fit, rule, pooled, record.cache)
         if key is not None:
             record.cache[key] = st
     dy_all, lm = shared_moments(y, p, largest_order(options), record.cache)

@@ -109,7 +109,8 @@ def test_batched_polynomial_tools_match_scipy():
 
 def test_methods_share_one_structure_selection(monkeypatch):
     """wang-iv after wang-lsm on one record reuses the selection (one table computed, not two)
-    and gives the same estimate as alone; bai-fu (OLS selection) computes its own."""
+    and gives the same estimate as alone; bai-fu (OLS selection) and a selection by a closure
+    compute their own."""
     from hbench import identifiers
 
     calls = []
@@ -130,6 +131,9 @@ def test_methods_share_one_structure_selection(monkeypatch):
     assert len(calls) == 2  # wang-iv took wang-lsm's selection
     identify(registry().get("identifiers", "bai-fu")(), record, options)
     assert len(calls) == 3
+    # the IV's own table (a closure reading r) is never taken from the cache
+    identify(registry().get("identifiers", "wang-iv")(structure="iv"), record, options)
+    assert len(calls) == 4
     for field in ("a", "b", "U", "na", "nb", "tau"):
         np.testing.assert_array_equal(getattr(shared, field), getattr(alone, field), field)
 

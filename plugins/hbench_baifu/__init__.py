@@ -20,7 +20,14 @@ import numpy as np
 from hbench import polyphase as pp
 from hbench.errors import InputError
 from hbench.hookspecs import Register, hookimpl
-from hbench.identifiers import Estimate, Identifier, IdentifyOptions, SelectionRule, blind_fit
+from hbench.identifiers import (
+    Estimate,
+    Identifier,
+    IdentifyOptions,
+    SelectionRule,
+    blind_fit,
+    ols_fit,
+)
 from hbench.records import Record, Truth
 
 INVERSES = ("auto", "direct", "bezout", "refuse")
@@ -81,10 +88,6 @@ class BaiFu(Identifier):
     def identify(
         self, record: Record, options: IdentifyOptions, truth: Truth | None = None
     ) -> Estimate:
-        def denominator(reg, idx):
-            theta, s2, _ = pp.ols(reg)
-            return theta, s2 / 2.0
-
         def numerator(dw, tau, nb, sigma2, idx):
             return pp.b_ols(dw, record.p, tau, nb, t_min=pp.first_valid(dw))
 
@@ -92,13 +95,12 @@ class BaiFu(Identifier):
             self.name,
             record,
             options,
-            denominator=denominator,
+            denominator=ols_fit,
             numerator=numerator,
             inner=inverse_inner(self.inverse),
             pooled=self.pooled,
             rule=SelectionRule(),
             info=self.options(),
-            selection_key="ols",
         )
 
 

@@ -9,7 +9,14 @@ from scipy import signal
 
 from hbench import polyphase as pp
 from hbench.errors import InputError
-from hbench.identifiers import Estimate, Identifier, IdentifyOptions, SelectionRule, blind_fit
+from hbench.identifiers import (
+    Estimate,
+    Identifier,
+    IdentifyOptions,
+    SelectionRule,
+    bias_compensated_fit,
+    blind_fit,
+)
 from hbench.records import Record, Truth
 
 
@@ -123,9 +130,6 @@ class ColoredNoiseLSM(Identifier):
         p = record.p
         gammas: dict[int, np.ndarray] = {}
 
-        def denominator(reg: pp.QuietRegression, idx: np.ndarray):
-            return pp.bias_compensated(reg)
-
         def refined(reg: pp.QuietRegression, idx: np.ndarray, tau: int, nb: int):
             theta, _ = pp.bias_compensated(reg)
             Rm, f = reg.moments()
@@ -151,11 +155,10 @@ class ColoredNoiseLSM(Identifier):
             self.name,
             record,
             options,
-            denominator=denominator,
+            denominator=bias_compensated_fit,
             numerator=numerator,
             pooled=True,
             rule=SelectionRule(),
             info=self.options(),
             refine=refined,
-            selection_key="bias-compensated",
         )

@@ -13,6 +13,7 @@ from hbench.identifiers import (
     Identifier,
     IdentifyOptions,
     SelectionRule,
+    bias_compensated_fit,
     blind_fit,
     largest_order,
 )
@@ -208,9 +209,6 @@ class OptimalIV(Identifier):
             theta, _ = gmm_iv(reg, r[idx], m, self.lag0, self.weighting, self.bandwidth)
             return theta, reg.residual_ms(theta) / 2.0
 
-        def selector(reg: pp.QuietRegression, idx: np.ndarray):
-            return pp.bias_compensated(reg)
-
         gammas: dict[int, np.ndarray] = {}
 
         def refine(reg: pp.QuietRegression, idx: np.ndarray, tau: int, nb: int):
@@ -238,7 +236,6 @@ class OptimalIV(Identifier):
             pooled=True,
             rule=SelectionRule(),
             info=self.options(),
-            selector=selector,
+            selector=bias_compensated_fit,
             refine=refine,
-            selection_key="bias-compensated",
         )

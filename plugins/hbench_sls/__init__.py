@@ -20,7 +20,13 @@ import numpy as np
 
 from hbench import polyphase as pp
 from hbench.hookspecs import Register, hookimpl
-from hbench.identifiers import Estimate, Identifier, IdentifyOptions, blind_fit
+from hbench.identifiers import (
+    Estimate,
+    Identifier,
+    IdentifyOptions,
+    bias_compensated_fit,
+    blind_fit,
+)
 from hbench.records import Record, Truth
 
 
@@ -85,9 +91,6 @@ class SunLiuSano(Identifier):
     ) -> Estimate:
         p = record.p
 
-        def denominator(reg, idx):
-            return pp.bias_compensated(reg)
-
         def numerator(dw, tau, nb, sigma2, idx):
             # the cross relation acts on w: rebuild it from dw up to a constant c, which cancels
             # exactly, c (h_j(0) + h_j(1) - h_i(0) - h_i(1)) = c (B(1) - B(1)) = 0
@@ -102,12 +105,11 @@ class SunLiuSano(Identifier):
             self.name,
             record,
             options,
-            denominator=denominator,
+            denominator=bias_compensated_fit,
             numerator=numerator,
             inner=mint_inner,
             pooled=True,
             info=self.options(),
-            selection_key="bias-compensated",
         )
 
 

@@ -22,6 +22,7 @@ from hbench.identifiers import (
     Identifier,
     IdentifyOptions,
     SelectionRule,
+    bias_compensated_fit,
     blind_fit,
     largest_order,
 )
@@ -74,9 +75,6 @@ class WangLSM(_Wang):
     def identify(
         self, record: Record, options: IdentifyOptions, truth: Truth | None = None
     ) -> Estimate:
-        def denominator(reg: pp.QuietRegression, idx: np.ndarray):
-            return pp.bias_compensated(reg)
-
         def numerator(dw, tau, nb, sigma2, idx):
             return pp.b_lsm(dw, record.p, tau, nb, sigma2, t_min=pp.first_valid(dw))
 
@@ -84,12 +82,11 @@ class WangLSM(_Wang):
             self.name,
             record,
             options,
-            denominator=denominator,
+            denominator=bias_compensated_fit,
             numerator=numerator,
             pooled=self.pooled,
             rule=self.rule,
             info=self.options(),
-            selection_key="bias-compensated",
         )
 
 
@@ -137,12 +134,6 @@ class WangIV(_Wang):
             t_min = pp.first_valid(dw)
             return pp.b_iv(dw, r[idx], record.p, tau, nb, self.m, t_min, self.lag0)
 
-        selector = None
-        if self.structure == "lsm":
-
-            def selector(reg: pp.QuietRegression, idx: np.ndarray):
-                return pp.bias_compensated(reg)
-
         return blind_fit(
             self.name,
             record,
@@ -152,8 +143,7 @@ class WangIV(_Wang):
             pooled=self.pooled,
             rule=self.rule,
             info=self.options(),
-            selector=selector,
-            selection_key="bias-compensated" if self.structure == "lsm" else None,
+            selector=bias_compensated_fit if self.structure == "lsm" else None,
         )
 
 
