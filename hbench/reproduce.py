@@ -417,11 +417,10 @@ def _lsm_inverse_class() -> type:
 
     Built on first use so that importing this module stays light (start-up time).
     """
-    import numpy as np
     from hbench_baifu import inverse_inner
 
     from hbench import polyphase as pp
-    from hbench.identifiers import Identifier, blind_fit
+    from hbench.identifiers import Identifier, bias_compensated_fit, blind_fit
 
     class WangLSMDirectInverse(Identifier):
         """Bias-compensated LSM A and B (eqs. 14, 15, 18) with the inner signal from the direct
@@ -438,19 +437,14 @@ def _lsm_inverse_class() -> type:
             return {"pooled": self.pooled, "inverse": "auto"}
 
         def identify(self, record, options, truth=None):
-            def denominator(reg, idx):
-                return pp.bias_compensated(reg)
-
             def numerator(dw, tau, nb, sigma2, idx):
-                return pp.b_lsm(
-                    dw, record.p, tau, nb, sigma2, t_min=int(np.argmin(np.isnan(dw[0])))
-                )
+                return pp.b_lsm(dw, record.p, tau, nb, sigma2, t_min=pp.first_valid(dw))
 
             return blind_fit(
                 self.name,
                 record,
                 options,
-                denominator=denominator,
+                denominator=bias_compensated_fit,
                 numerator=numerator,
                 inner=inverse_inner("auto"),
                 pooled=self.pooled,
