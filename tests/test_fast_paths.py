@@ -80,12 +80,15 @@ def test_iv_moments_equal_the_explicit_instruments(noisy):
     np.testing.assert_allclose(pp.iv_moments(reg, record.r, 6, 1), G, rtol=1e-12, atol=1e-15)
 
 
-def test_tridiagonal_lapack_equals_thomas():
-    rng = np.random.default_rng(0)
-    R, M = 7, 50
+def _spd_tridiagonal(seed: int, R: int, M: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(off, diag, rhs)`` of R diagonally dominant (so positive definite) systems of size M."""
+    rng = np.random.default_rng(seed)
     off = 0.3 * rng.standard_normal((R, M - 1))
-    diag = 2.0 + rng.random((R, M))
-    rhs = rng.standard_normal((R, M))
+    return off, 2.0 + rng.random((R, M)), rng.standard_normal((R, M))
+
+
+def test_tridiagonal_lapack_equals_thomas():
+    off, diag, rhs = _spd_tridiagonal(0, 7, 50)
     x = pp.solve_tridiagonal(off, diag, off, rhs)  # symmetric: LAPACK dptsv
     np.testing.assert_allclose(x, pp._thomas(off, diag, off, rhs), rtol=1e-12, atol=1e-12)
     # not positive definite: LAPACK refuses, the Thomas loop still solves it
@@ -170,11 +173,7 @@ def test_run_cell_rows_do_not_depend_on_worker_processes():
 
 def test_a_non_finite_run_stays_in_its_run():
     """One run's nan must not reach the others through the one LAPACK call for all runs."""
-    rng = np.random.default_rng(1)
-    R, M = 4, 30
-    off = 0.3 * rng.standard_normal((R, M - 1))
-    diag = 2.0 + rng.random((R, M))
-    rhs = rng.standard_normal((R, M))
+    off, diag, rhs = _spd_tridiagonal(1, 4, 30)
     clean = pp.solve_tridiagonal(off, diag, off, rhs)
     rhs[1, 5] = np.nan
     x = pp.solve_tridiagonal(off, diag, off, rhs)
