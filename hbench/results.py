@@ -22,47 +22,15 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-FITNESS_COLUMNS = [
-    "method",
-    "nonlinearity",
-    "p",
-    "delay",
-    "sigma2",
-    "snr_mean",
-    "n",
-    "fitness_mean",
-    "fitness_std",
-]
-BIAS_COLUMNS = [
-    "method",
-    "nonlinearity",
-    "p",
-    "delay",
-    "sigma2",
-    "parameter",
-    "true",
-    "mean",
-    "bias",
-    "std",
-    "n",
-]
-STRUCTURE_COLUMNS = [
-    "method",
-    "nonlinearity",
-    "p",
-    "delay",
-    "sigma2",
-    "snr_mean",
-    "quantity",
-    "true",
-    "hit_rate",
-    "n",
-]
+#: The columns that name a cell (and the method), first in every aggregated table.
+CELL_KEYS = ["method", "nonlinearity", "p", "delay", "sigma2"]
+FITNESS_COLUMNS = [*CELL_KEYS, "snr_mean", "n", "fitness_mean", "fitness_std"]
+BIAS_COLUMNS = [*CELL_KEYS, "parameter", "true", "mean", "bias", "std", "n"]
+STRUCTURE_COLUMNS = [*CELL_KEYS, "snr_mean", "quantity", "true", "hit_rate", "n"]
 #: Structure quantities of the tidy rows scored by ``structure.csv`` (``delay``: tau + m p).
 STRUCTURE_QUANTITIES = ("na", "nb", "tau", "delay")
 #: An estimate within this of the truth is a hit (the structure quantities are whole numbers).
 HIT_TOLERANCE = 1e-9
-CELL_KEYS = ["method", "nonlinearity", "p", "delay", "sigma2"]
 #: Column of the cell's noise level: sigma2, or -snr_target for a cell given by a target SNR.
 LEVEL = "level"
 
