@@ -489,7 +489,7 @@ def select_structure(
         v[:, :, 1:] = -np.stack([fit(reg, all_runs)[0] for reg in regs], axis=1)
         M = np.stack([reg.all_moments() for reg in regs], axis=1)  # (R, s2, na+1, na+1)
         ms = np.einsum("rsa,rtab,rsb->rst", v, M, v, optimize=True)
-        C[:, i] = (1.0 + 2.0 * na / regs[0].n) * ms
+        C[:, i] = pp.aic(ms, int(na), regs[0].n)
     V = np.einsum("rass->ras", C)
     allowed = np.ones(p, bool)
     if options.tau_range is not None:

@@ -295,11 +295,10 @@ def iv(reg: QuietRegression, r: np.ndarray, m: int, lag0: int = 1) -> np.ndarray
     return np.einsum("rim,rm->ri", np.linalg.pinv(G[:, :, 1:], rcond=_RCOND), G[:, :, 0])
 
 
-def aic(reg: QuietRegression, theta: np.ndarray, K: int | None = None) -> np.ndarray:
-    """Eq. (19): ``V(na) = (1 + 2 na / K) (1/K) sum (Delta y - phi^T theta)^2``."""
-    K = reg.n if K is None else K
-    na = reg.na
-    return (1.0 + 2.0 * na / K) * reg.residual_ms(theta)
+def aic(ms: np.ndarray, na: int, K: int) -> np.ndarray:
+    """Eq. (19): ``V(na) = (1 + 2 na / K) (1/K) sum (Delta y - phi^T theta)^2`` from the residual
+    mean square ``ms`` over ``K`` rows."""
+    return (1.0 + 2.0 * na / K) * ms
 
 
 # --- numerator (eqs. 17, 18, 21) ---------------------------------------------------------------
