@@ -170,8 +170,8 @@ def run_cell(
         Keep run 0's x, true U and each method's U for plots.
     jobs : int
         Worker processes (forked) computing chunks in parallel; the rows are the same whatever
-        ``jobs`` (but for the ``seconds`` quantity). A cell of fewer runs than ``jobs * chunk``
-        is split into ``jobs`` chunks.
+        ``jobs`` (but for the ``seconds`` quantity). With ``jobs > 1`` the cell is cut into a
+        multiple of ``jobs`` chunks of near-equal size (at most ``chunk`` runs each).
     """
     if int(jobs) < 1:
         raise InputError(f"jobs must be >= 1, got {jobs}")
@@ -190,11 +190,7 @@ def run_cell(
         "seed": str(seq.entropy),
     }
     work = _Work(scenario, dict(methods), options, ids, seq, keep_example)
-    starts = list(range(0, runs, chunk))
-    if jobs > 1 and len(starts) < jobs and runs > 1:  # one chunk per worker at least
-        chunk = -(-runs // jobs)
-        starts = list(range(0, runs, chunk))
-    pieces = [(s0, min(chunk, runs - s0)) for s0 in starts]
+    pieces = _pieces(runs, chunk, jobs)
     rows: list[pd.DataFrame] = []
     example: dict[str, Any] = {}
     done = 0
@@ -207,6 +203,26 @@ def run_cell(
             progress(done, runs)
     frame = pd.concat(rows, ignore_index=True) if rows else pd.DataFrame(columns=list(TIDY_COLUMNS))
     return CellResult(rows=frame, example=example)
+
+
+def _pieces(runs: int, chunk: int, jobs: int) -> list[tuple[int, int]]:
+    """``(start, n)`` of each chunk: at most ``chunk`` runs each; with ``jobs > 1`` the number of
+    chunks is a multiple of ``jobs`` and their sizes differ by one at most, so no worker idles
+    while another computes a last chunk (5 chunks of 200 on 2 workers took 3 rounds)."""
+    if int(chunk) < 1:
+        raise InputError(f"chunk must be >= 1, got {chunk}")
+    if runs <= 0:
+        return []
+    count = -(-runs // chunk)
+    if jobs > 1:
+        count = min(runs, -(-count // jobs) * jobs)
+    size, extra = divmod(runs, count)
+    out, start = [], 0
+    for i in range(count):
+        n = size + (i < extra)
+        out.append((start, n))
+        start += n
+    return out
 
 
 @dataclass

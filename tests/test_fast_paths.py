@@ -171,6 +171,25 @@ def test_run_cell_rows_do_not_depend_on_worker_processes():
     pd.testing.assert_frame_equal(one, two, check_exact=True)
 
 
+@pytest.mark.parametrize(
+    ("runs", "chunk", "jobs", "sizes"),
+    [
+        (1000, 200, 1, [200] * 5),
+        (1000, 200, 2, [167] * 4 + [166] * 2),  # 6 chunks, not 5: 3 rounds on 2 workers
+        (250, 200, 1, [125, 125]),
+        (5, 200, 2, [3, 2]),
+        (3, 1, 2, [1, 1, 1]),  # never more chunks than runs
+        (0, 200, 2, []),
+    ],
+)
+def test_chunks_cover_the_runs_once_and_balance_the_workers(runs, chunk, jobs, sizes):
+    from hbench.runner import _pieces
+
+    pieces = _pieces(runs, chunk, jobs)
+    assert [n for _, n in pieces] == sizes
+    assert [s for s, _ in pieces] == list(np.cumsum([0, *sizes])[:-1])
+
+
 def test_a_non_finite_run_stays_in_its_run():
     """One run's nan must not reach the others through the one LAPACK call for all runs."""
     off, diag, rhs = _spd_tridiagonal(1, 4, 30)
