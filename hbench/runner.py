@@ -22,6 +22,7 @@ from hbench.errors import InputError
 from hbench.identifiers import Estimate, Identifier, IdentifyOptions, identify
 from hbench.metrics import fitness
 from hbench.records import Record, Truth
+from hbench.runtime import batch_settings
 from hbench.schema import ID_COLUMNS, TIDY_COLUMNS  # noqa: F401 - re-exported
 from hbench.simulate import Scenario, simulate
 
@@ -194,13 +195,14 @@ def run_cell(
     rows: list[pd.DataFrame] = []
     example: dict[str, Any] = {}
     done = 0
-    for (_start, n), (frames, ex) in zip(pieces, _map_chunks(work, pieces, jobs), strict=True):
-        rows.extend(frames)
-        if ex and not example:
-            example = ex
-        done += n
-        if progress is not None:
-            progress(done, runs)
+    with batch_settings():  # one BLAS thread, glibc's allocator tuned (hbench.runtime)
+        for (_start, n), (frames, ex) in zip(pieces, _map_chunks(work, pieces, jobs), strict=True):
+            rows.extend(frames)
+            if ex and not example:
+                example = ex
+            done += n
+            if progress is not None:
+                progress(done, runs)
     frame = pd.concat(rows, ignore_index=True) if rows else pd.DataFrame(columns=list(TIDY_COLUMNS))
     return CellResult(rows=frame, example=example)
 
