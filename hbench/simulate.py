@@ -283,7 +283,9 @@ def simulate(
         )
     streams = run_streams(rng, runs, ("reference", "noise"), start=start)
     r = sc.reference.generate(streams["reference"], K)
-    e = np.stack([g.standard_normal(N) for g in streams["noise"]])
+    e = np.empty((runs, N))
+    for i, g in enumerate(streams["noise"]):
+        g.standard_normal(out=e[i])  # the same draws as standard_normal(N), without a stack
     v_unit = sc.noise.shape(e, plant)
     lp = LiftedPlant.from_plant(plant, p)
 
