@@ -218,3 +218,221 @@ def horch_phase(x: np.ndarray, y: np.ndarray, max_lag: int | None = None) -> flo
     if tau_r == tau_l:  # both crossings at lag 0: no phase to read
         return float("nan")
     return float(abs(np.pi * (tau_r + tau_l) / (tau_r - tau_l)))
+
+
+# --------------------------------------------------------------------------- OP-PV pattern tests
+
+
+def difference_noise(z: np.ndarray) -> float:
+    """The noise standard deviation of the first difference of ``z``, read from its second
+    difference: white noise of deviation ``s`` gives differences of deviation ``sqrt(2) s``
+    and second differences of ``sqrt(6) s``, while ramps (a constant difference) leave the
+    second difference at zero; so ``robust_sigma(d2 z) / sqrt(3)``, robust to the corners."""
+    d2 = np.diff(np.asarray(z, float), 2)
+    return robust_sigma(d2) / np.sqrt(3.0) if d2.size else 0.0
+
+
+def qualitative_symbols(z: np.ndarray, band: float = 3.0) -> np.ndarray:
+    """Yamashita's qualitative symbols of a series: its first difference ``dz`` is ``+1`` (I,
+    increasing) above ``band`` noise standard deviations of ``dz`` (:func:`difference_noise`),
+    ``-1`` (D, decreasing) below minus that, ``0`` (S, steady) within.
+
+    Parameters
+    ----------
+    z : np.ndarray
+        The series (length ``n``).
+    band : float
+        The steady band in noise standard deviations of ``dz`` (see :func:`yamashita_index`).
+
+    Returns
+    -------
+    np.ndarray
+        ``n - 1`` integers in ``{-1, 0, 1}``.
+    """
+    z = np.asarray(z, float)
+    d = np.diff(z)
+    s = difference_noise(z)
+    if s <= 0:  # no noise to read (a noiseless or quantised series): any change moves
+        s = float(np.finfo(float).eps) * max(1.0, float(np.max(np.abs(z), initial=0.0)))
+    return np.where(d > band * s, 1, np.where(d < -band * s, -1, 0))
+
+
+def yamashita_index(x: np.ndarray, y: np.ndarray, band: float = 3.0) -> float:
+    """Yamashita (2006) stuck-pattern index of a control loop.
+
+    Y. Yamashita, "An automatic method for detection of valve stiction in process control
+    loops", Control Engineering Practice 14 (2006) 503-510 (the qualitative-shape method). The
+    differences of the controller output ``x`` (OP) and of the process variable ``y`` (PV, a
+    flow in the paper, so that PV follows the valve stem) are turned into the symbols I, D, S
+    (:func:`qualitative_symbols`); a sticking valve shows the *stuck* patterns, OP moving while
+    PV stays: IS and DS. The index is
+
+    ``rho = (tau_IS + tau_DS) / (tau - tau_SS)``,
+
+    the time in the stuck patterns over the time in which anything moves. The paper's limit:
+    ``rho > 0.25`` is stiction (:data:`YAMASHITA_RHO`). The paper quantises normalised
+    derivatives; its steady band could not be checked here. The band used (3 noise standard
+    deviations of each difference, the noise read from second differences) is fixed a priori,
+    not tuned on data: a band of one standard deviation of the difference itself (tried first)
+    makes the symbols of a steady ramp random, since a ramp's difference is its own standard
+    deviation.
+
+    Parameters
+    ----------
+    x, y : np.ndarray
+        Controller output and process variable, same length.
+    band : float
+        Steady band of the symbols, in noise standard deviations of each difference.
+
+    Returns
+    -------
+    float
+        ``rho`` in ``[0, 1]``; nan when nothing moves.
+    """
+    x = np.asarray(x, float)
+    y = np.asarray(y, float)
+    if x.size != y.size:
+        raise ValueError(f"x and y differ in length ({x.size} and {y.size})")
+    sx = qualitative_symbols(x, band)
+    sy = qualitative_symbols(y, band)
+    moving = ~((sx == 0) & (sy == 0))
+    if not np.any(moving):
+        return float("nan")
+    stuck = (sx != 0) & (sy == 0)
+    return float(np.sum(stuck) / np.sum(moving))
+
+
+#: Yamashita (2006): ``rho > 0.25`` is a sticking valve.
+YAMASHITA_RHO = 0.25
+
+
+def kano_index(x: np.ndarray, y: np.ndarray, band: float = 3.0, min_len: int = 3) -> float:
+    """Kano et al. (2004) stuck-section index of a control loop.
+
+    M. Kano, H. Maruta, H. Kugemoto, K. Shimizu, "Practical model and detection algorithm for
+    valve stiction", IFAC DYCOPS 2004, Boston. Where the valve sticks, the process variable
+    ``y`` (PV, a flow: the valve's position seen through the process) stays put over whole
+    *sections* while the controller output ``x`` (OP) keeps moving; a free valve moves the PV
+    whenever the OP moves. A section is a run of at least ``min_len`` consecutive differences
+    in which PV is steady (the steady symbol of :func:`qualitative_symbols`); it is *stuck*
+    when the OP's net travel over it, ``|x_end - x_start|``, exceeds ``band`` noise standard
+    deviations of ``dx`` times ``sqrt(L)`` (more than the OP's noise could travel in ``L``
+    steps). The index is the share of the record's differences that lie in stuck sections.
+
+    Kano et al. decide on such sections of the OP-PV record; their own section limits could
+    not be checked here, so ``band``, ``min_len`` and the travel rule are fixed a priori (not
+    tuned on data) and the decision limit is Yamashita's share (:data:`KANO_SHARE`, 0.25).
+
+    Parameters
+    ----------
+    x, y : np.ndarray
+        Controller output and process variable, same length.
+    band : float
+        Steady band (PV) and travel scale (OP), in noise standard deviations of each
+        difference (:func:`difference_noise`).
+    min_len : int
+        Fewest differences in a section.
+
+    Returns
+    -------
+    float
+        The share in ``[0, 1]``; nan when the OP is constant.
+    """
+    x = np.asarray(x, float)
+    y = np.asarray(y, float)
+    if x.size != y.size:
+        raise ValueError(f"x and y differ in length ({x.size} and {y.size})")
+    if np.ptp(x) == 0:
+        return float("nan")
+    steady = qualitative_symbols(y, band) == 0
+    sx = difference_noise(x)
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], steady.astype(int), [0]])))
+    stuck = 0
+    for a, b in zip(edges[::2], edges[1::2], strict=True):
+        L = int(b - a)
+        if L >= min_len and abs(x[b] - x[a]) > band * sx * np.sqrt(L):
+            stuck += L
+    return float(stuck / (x.size - 1))
+
+
+#: The share of stuck sections above which :func:`kano_index` calls stiction (a priori).
+KANO_SHARE = 0.25
+
+
+def squared_bicoherence(e: np.ndarray, nfft: int = 128) -> tuple[np.ndarray, int]:
+    """Squared bicoherence of ``e`` over the principal domain, by the direct method.
+
+    Segments of ``nfft`` samples with half overlap, each mean-removed and Hann-windowed;
+    ``bic^2(f1, f2) = |E[X1 X2 X12*]|^2 / (E[|X1 X2|^2] E[|X12|^2])`` (Kim and Powers'
+    normalisation, as in Choudhury, Shah and Thornhill 2004) for bins ``0 < f2 <= f1``,
+    ``f1 + f2 < nfft / 2``.
+
+    Parameters
+    ----------
+    e : np.ndarray
+        The series (a loop's control error in Choudhury et al.).
+    nfft : int
+        Segment length.
+
+    Returns
+    -------
+    tuple[np.ndarray, int]
+        The bicoherence values (a flat array over the principal domain) and the number of
+        segments ``K``.
+    """
+    e = np.asarray(e, float)
+    step = nfft // 2
+    starts = range(0, e.size - nfft + 1, step)
+    w = np.hanning(nfft)
+    X = np.array([np.fft.fft((e[s : s + nfft] - e[s : s + nfft].mean()) * w) for s in starts])
+    K = len(starts)
+    if K == 0:
+        return np.zeros(0), 0
+    half = nfft // 2
+    f1, f2 = np.meshgrid(np.arange(1, half), np.arange(1, half), indexing="ij")
+    keep = (f2 <= f1) & (f1 + f2 < half)
+    i, j = f1[keep], f2[keep]
+    X1, X2, X12 = X[:, i], X[:, j], X[:, i + j]
+    num = np.abs(np.mean(X1 * X2 * np.conj(X12), axis=0)) ** 2
+    den = np.mean(np.abs(X1 * X2) ** 2, axis=0) * np.mean(np.abs(X12) ** 2, axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        bic = np.where(den > 0, num / den, 0.0)
+    return bic, K
+
+
+def nonlinearity_indices(
+    e: np.ndarray, nfft: int = 128, alpha: float = 0.05
+) -> tuple[float, float]:
+    """Choudhury, Shah and Thornhill's non-Gaussianity and nonlinearity indices.
+
+    M. A. A. S. Choudhury, S. L. Shah, N. F. Thornhill, "Diagnosis of poor control-loop
+    performance using higher-order statistics", Automatica 40 (2004) 1719-1728 (and their
+    book, Springer 2008). From the squared bicoherence (:func:`squared_bicoherence`, ``K``
+    segments) and the critical value ``c = chi2_{1-alpha}(2) / (2 K)`` of a Gaussian series:
+
+    ``NGI = sum(bic^2 > c) / L - c`` (the significant values summed over the ``L`` bins of
+    the principal domain) and ``NLI = |max bic^2 - (mean bic^2 + 2 std bic^2)|``.
+
+    Their limits: ``NGI > 0.001`` is a non-Gaussian series (:data:`CHOUDHURY_NGI`), and then
+    ``NLI > 0.01`` a nonlinear loop (:data:`CHOUDHURY_NLI`); the stiction tests of the
+    literature are the next step only for nonlinear loops. The published recipe also filters
+    the error around the oscillation; this function takes the series as it is.
+
+    Returns
+    -------
+    tuple[float, float]
+        ``(NGI, NLI)``; nan for a record shorter than two segments.
+    """
+    bic, K = squared_bicoherence(e, nfft)
+    if K < 2 or bic.size == 0:
+        return float("nan"), float("nan")
+    c = float(stats.chi2.ppf(1 - alpha, 2)) / (2 * K)
+    ngi = float(np.sum(bic[bic > c]) / bic.size - c)
+    nli = float(abs(np.max(bic) - (np.mean(bic) + 2 * np.std(bic))))
+    return ngi, nli
+
+
+#: Choudhury et al.: ``NGI > 0.001`` is non-Gaussian ...
+CHOUDHURY_NGI = 0.001
+#: ... and ``NLI > 0.01`` nonlinear.
+CHOUDHURY_NLI = 0.01
