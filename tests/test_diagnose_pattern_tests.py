@@ -61,3 +61,12 @@ def test_nonlinearity_indices_gaussian_and_not() -> None:
     ngi, nli = stats.nonlinearity_indices(saw)
     assert ngi > stats.CHOUDHURY_NGI and nli > stats.CHOUDHURY_NLI
     assert np.all(np.isnan(stats.nonlinearity_indices(np.zeros(100))))
+
+
+def test_calibrate_pattern_tests_reads_a_loop() -> None:
+    from hbench.diagnose import calibrate
+
+    x, y = _flow_loop(sticky=True)
+    out = calibrate.pattern_tests(x, y, None)
+    assert out["yamashita"] and out["kano_stuck"]
+    assert set(out) >= {"rho", "kano", "ngi", "nli", "nonlinear"}

@@ -1,6 +1,7 @@
 """Calibration and scoring of the detectors on synthetic records (``python -m
-hbench.diagnose.calibrate``), of the stiction verdict on synthetic plant loops (``.. loops``)
-and on the real plant records (``.. real FOLDER``).
+hbench.diagnose.calibrate``), of the stiction verdict on synthetic plant loops (``.. loops``) and
+on the real plant records (``.. real FOLDER``), and of the literature's OP-PV pattern tests on the
+synthetic plant loops (``.. patterns``).
 
 ``--effect none --start 5000 --n 200`` prints every detector's statistic on nominal records
 (its largest values set the thresholds in :mod:`hbench.diagnose.effects`); any other effect
@@ -304,9 +305,57 @@ def main_loops(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------- OP-PV pattern tests
+
+
+def pattern_tests(x: np.ndarray, y: np.ndarray, r: np.ndarray | None) -> dict[str, Any]:
+    """The literature's OP-PV stiction tests with their limits (:mod:`hbench.diagnose.stats`):
+    Yamashita's ``rho``, Kano et al.'s stuck-section share and Choudhury et al.'s NGI / NLI of
+    the control error ``r - y`` (``y`` less its mean without a set point)."""
+    from hbench.diagnose import stats
+
+    e = (r - y) if r is not None else (y - np.mean(y))
+    ngi, nli = stats.nonlinearity_indices(e)
+    rho = stats.yamashita_index(x, y)
+    kano = stats.kano_index(x, y)
+    return {
+        "rho": rho,
+        "kano": kano,
+        "ngi": ngi,
+        "nli": nli,
+        "yamashita": bool(rho > stats.YAMASHITA_RHO),
+        "kano_stuck": bool(kano > stats.KANO_SHARE),
+        "nonlinear": bool(ngi > stats.CHOUDHURY_NGI and nli > stats.CHOUDHURY_NLI),
+    }
+
+
+def main_patterns(argv: Sequence[str] | None = None) -> int:
+    """``python -m hbench.diagnose.calibrate patterns [--n N] [--start S]``: how often each
+    OP-PV pattern test (:func:`pattern_tests`) calls stiction on the synthetic plant loops,
+    per true valve class."""
+    ap = argparse.ArgumentParser(prog="python -m hbench.diagnose.calibrate patterns")
+    ap.add_argument("--n", type=int, default=128)
+    ap.add_argument("--start", type=int, default=0)
+    args = ap.parse_args(argv)
+    rows = []
+    for case in gen.loop_cases(args.n, args.start):
+        rec = gen.simulate_loop(case)
+        r = None if rec.r is None else rec.r[0]
+        rows.append({"cls": case.cls, **pattern_tests(rec.x[0], rec.y[0], r)})
+    for test in ("yamashita", "kano_stuck", "nonlinear"):
+        cells = []
+        for cls in gen.LOOP_VALVES:
+            sel = [r for r in rows if r["cls"] == cls]
+            cells.append(f"{cls} {sum(r[test] for r in sel)}/{len(sel)}")
+        print(f"{test:11s} " + ", ".join(cells))
+    return 0
+
+
 if __name__ == "__main__":  # pragma: no cover
     if len(sys.argv) > 1 and sys.argv[1] == "real":
         sys.exit(main_real(sys.argv[2:]))
     if len(sys.argv) > 1 and sys.argv[1] == "loops":
         sys.exit(main_loops(sys.argv[2:]))
+    if len(sys.argv) > 1 and sys.argv[1] == "patterns":
+        sys.exit(main_patterns(sys.argv[2:]))
     sys.exit(main())
