@@ -12,15 +12,21 @@ metrics + tidy rows, batched, against the naive baseline of ``naive.py`` in the 
 The speed-ups (runs per second of the batched path over each baseline) are printed at the end
 and stored in ``extra_info``; the naive runs are checked to give the batched path's fitness.
 
-Measured on the project's idle 2-core machine (2026-11-22): 650 runs/s in one process, 990 with
-``jobs=2``, against the issue's target of 3000 (not met). What still dominates (cProfile of one
-1000-run cell, ~1.6 s of CPU): no single hot spot. The closed loop over 833 slow steps
-(~0.2 s, a Python loop vectorised over runs, plugin ``step`` calls), the per-run noise and
-reference streams (~0.1 s: seeding, Gaussian draws, ``lfilter``), the structure selections
-(two per chunk, ~0.4 s), and, for the rest, whole-record numpy passes over ``(runs, K p)``
-arrays (``A(q) y``, ``Delta w``, the SIMO blocks, eq. 27's right-hand sides, the fitness), each
-a few ms per 1000 runs and memory-bound. Going further means fusing those passes in compiled
-kernels (numba), with the numpy path kept as the reference.
+Measured on the project's idle 2-core machine (2026-11-22, session 3): 900 runs/s in one
+process, 1310 with ``jobs=2``, against the issue's target of 3000 (not met); session 2 measured
+650 and 990. The gain came from the process settings of :mod:`hbench.runtime` (one BLAS thread:
+OpenBLAS spread every small product over both cores, 2.2 s of CPU for 1.4 s of wall time; glibc's
+allocator with fixed mmap/trim thresholds: ~130 000 page faults and 0.35 s of system time per
+1000 runs before) and from chunks balanced over the workers (1000 runs were 5 chunks on 2 workers,
+3 rounds). What still dominates, ~1.1 s of CPU per 1000 runs, no single hot spot: the closed loop
+over 833 slow steps (~0.13 s, a Python loop vectorised over runs), per-run noise and reference
+streams (~0.1 s: seeding, Gaussian draws, ``lfilter``), two structure selections per chunk
+(~0.3 s, of which ~0.13 s are batched 2x2..4x4 pseudo-inverses through ``eigh``), the tidy rows
+(~0.1 s, mostly pandas' string columns) and whole-record numpy passes over ``(runs, K p)`` arrays
+(``A(q) y``, ``Delta w``, the SIMO blocks, eq. 27, the fitness). With ``jobs=2`` each worker's
+first chunk pays ~22 000 copy-on-write page faults (+0.08 s) and the two processes reach 1.45x
+one. 3000 runs/s on 2 cores needs ~0.67 ms of CPU per run against ~1.1 ms now: compiled kernels
+fusing those passes, with the numpy path kept as the reference.
 """
 
 from __future__ import annotations
