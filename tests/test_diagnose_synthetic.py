@@ -130,3 +130,17 @@ def test_stiction_verdict_on_synthetic_plant_loops(capsys: pytest.CaptureFixture
             assert found[cls][0] >= k - 1
         else:
             assert found[cls][0] <= k + 1
+
+
+def test_loop_type_breakdown_counts_hits_and_false_alarms() -> None:
+    rows = [
+        {"loop": "level", "cls": "stiction", "verdict": True},
+        {"loop": "level", "cls": "stiction", "verdict": False},
+        {"loop": "level", "cls": "backlash", "verdict": True},
+        {"loop": "flow", "cls": "linear", "verdict": False},
+    ]
+    out = calibrate.loop_type_verdicts(rows)
+    assert list(out) == list(generator.LOOP_TYPES)
+    assert out["level"] == (1, 2, 1, 1)
+    assert out["flow"] == (0, 0, 0, 1)
+    assert out["slow"] == (0, 0, 0, 0)

@@ -281,6 +281,17 @@ def loop_verdicts(rows: Sequence[dict[str, Any]]) -> dict[str, tuple[int, int]]:
     return out
 
 
+def loop_type_verdicts(rows: Sequence[dict[str, Any]]) -> dict[str, tuple[int, int, int, int]]:
+    """Per loop type: ``(sticking valves called stiction, sticking valves, other valves called
+    stiction, other valves)``."""
+    out: dict[str, tuple[int, int, int, int]] = {}
+    for loop in gen.LOOP_TYPES:
+        st = [r for r in rows if r["loop"] == loop and r["cls"] == "stiction"]
+        ot = [r for r in rows if r["loop"] == loop and r["cls"] != "stiction"]
+        out[loop] = (sum(r["verdict"] for r in st), len(st), sum(r["verdict"] for r in ot), len(ot))
+    return out
+
+
 def main_loops(argv: Sequence[str] | None = None) -> int:
     """``python -m hbench.diagnose.calibrate loops [--n N] [--start S] [--jobs J]``: the stiction
     verdict on synthetic plant loops (:func:`hbench.diagnose.generator.loop_cases`)."""
@@ -302,6 +313,9 @@ def main_loops(argv: Sequence[str] | None = None) -> int:
         print(f"{'ok ' if ok else 'BAD'} {r['name']:40s} -> {r['found_cls']}")
     for cls, (k, n) in loop_verdicts(rows).items():
         print(f"{cls:11s} called stiction {k}/{n}")
+    print("per loop type (sticking valves found; other valves called stiction):")
+    for loop, (k, n, f, m) in loop_type_verdicts(rows).items():
+        print(f"  {loop:9s} stiction {k}/{n}, false alarms {f}/{m}")
     return 0
 
 
