@@ -39,7 +39,8 @@ per-sample differences of these loops are mostly noise. Kano's sections call 14 
 false; the bicoherence index never passes (751 samples give 10 segments, whose critical value
 the thresholded mean cannot reach). Of three combination rules fixed before measuring, the best
 (this detector or both pattern tests) found 25 of 64 sticking valves instead of 17 but raised
-the false alarms from 5 to 11 and lost 2 of the 48 development records, so none was adopted.
+the false alarms from 5 to 11 and lost 2 of the 48 development records, so none was adopted
+(``docs/experiments/literature-stiction-tests.md``).
 
 Integrating (level) loops are not treated apart. Per loop type this detector finds 6/16
 sticking valves on flow loops, 5/16 pressure, 4/16 level, 2/16 slow (false alarms 3, 1, 1, 0
@@ -52,7 +53,7 @@ two. None of the data criteria separates integrating loops from self-regulating 
 slow disturbances (the differenced route was taken on 19 to 66 of the 96 non-level loops,
 which then lost their detections), and in closed loop the unmeasured inflow the controller
 cancels biases an output-error model of ``dy`` (it picks the longest delay), so none was
-adopted (``notes/integrating_prereg.md``).
+adopted (``docs/experiments/integrating-route.md``).
 """
 
 from __future__ import annotations
