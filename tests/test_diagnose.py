@@ -302,3 +302,22 @@ def test_bad_options(run_cli: RunCli, nominal_file: Path) -> None:
     assert "unknown method" in msg
     msg = _one_line_error(*run_cli(["diagnose", str(nominal_file), "--fit-fraction", "1.5"])[::2])
     assert "fit-fraction" in msg
+
+
+def test_accuracy_interval_resamples_loops_not_records():
+    from hbench.diagnose.calibrate import accuracy_interval
+
+    def rows(spec):  # spec: loop -> (right, wrong)
+        out = []
+        for tag, (k, m) in spec.items():
+            out += [{"split": "evaluation", "loop_tag": tag, "correct": True}] * k
+            out += [{"split": "evaluation", "loop_tag": tag, "correct": False}] * m
+        return out
+
+    assert accuracy_interval(rows({"a": (3, 0), "b": (1, 0)}), "evaluation") == (100.0, 100.0)
+    # one loop of 10 wrong records among 10 loops of one right record: as records 50 %; as
+    # loops every resample without loop "z" is 100 % and one with it twice is 10 / 28
+    spec = {f"l{i}": (1, 0) for i in range(10)} | {"z": (0, 10)}
+    lo, hi = accuracy_interval(rows(spec), "evaluation", n_boot=4000, seed=1)
+    assert hi == 100.0 and lo < 40.0
+    assert np.isnan(accuracy_interval([], "evaluation")[0])

@@ -67,8 +67,9 @@ def test_stiction_verdict_accuracy(capsys: pytest.CaptureFixture[str]) -> None:
         print(
             f"\nstiction verdict: development {dev[0]}/{dev[1]} "
             f"({100 * dev[0] / dev[1]:.1f} %), evaluation {ev[0]}/{ev[1]} "
-            f"({100 * ev[0] / ev[1]:.1f} %; {ev_readable[0]}/{ev_readable[1]} of the "
-            "readable records)"
+            f"({100 * ev[0] / ev[1]:.1f} %, 95 % interval over loops "
+            "{:.0f}-{:.0f} %; ".format(*calibrate.accuracy_interval(rows, "evaluation"))
+            + f"{ev_readable[0]}/{ev_readable[1]} of the readable records)"
         )
         for r in rows:
             if not r["correct"]:

@@ -221,6 +221,32 @@ def accuracy(rows: Sequence[dict[str, Any]], split: str, refused: str = "wrong")
     return sum(r["correct"] for r in sel), len(sel)
 
 
+def accuracy_interval(
+    rows: Sequence[dict[str, Any]],
+    split: str,
+    level: float = 0.95,
+    n_boot: int = 10_000,
+    seed: int = 0,
+) -> tuple[float, float]:
+    """A ``level`` percentile interval of the accuracy on ``split`` (refused records wrong),
+    resampling whole loops (``loop_tag``) with replacement: records of one loop are not
+    independent (several are windows of one valve), so loops are the sampling unit.
+
+    ``n_boot`` resamples from ``numpy.random.default_rng(seed)``; returns percentages.
+    """
+    sel = [r for r in rows if r["split"] == split]
+    if not sel:
+        return float("nan"), float("nan")
+    loops = sorted({r["loop_tag"] for r in sel})
+    right = np.array([sum(r["correct"] for r in sel if r["loop_tag"] == t) for t in loops], float)
+    count = np.array([sum(1 for r in sel if r["loop_tag"] == t) for t in loops], float)
+    rng = np.random.default_rng(seed)
+    pick = rng.integers(0, len(loops), size=(n_boot, len(loops)))
+    acc = 100.0 * right[pick].sum(axis=1) / count[pick].sum(axis=1)
+    lo, hi = np.percentile(acc, [50 * (1 - level), 50 * (1 + level)])
+    return float(lo), float(hi)
+
+
 def main_real(argv: Sequence[str] | None = None) -> int:
     """``python -m hbench.diagnose.calibrate real FOLDER [--split S] [--jobs J]``."""
     ap = argparse.ArgumentParser(prog="python -m hbench.diagnose.calibrate real")
@@ -239,8 +265,10 @@ def main_real(argv: Sequence[str] | None = None) -> int:
     for split in splits:
         c, n = accuracy(rows, split)
         c2, n2 = accuracy(rows, split, "skip")
+        lo, hi = accuracy_interval(rows, split)
         print(
-            f"{split}: {c}/{n} = {100 * c / max(n, 1):.1f} % (refused records counted wrong); "
+            f"{split}: {c}/{n} = {100 * c / max(n, 1):.1f} % (refused records counted wrong; "
+            f"95 % interval over loops {lo:.0f}-{hi:.0f} %); "
             f"{c2}/{n2} = {100 * c2 / max(n2, 1):.1f} % without them"
         )
     return 0
