@@ -19,6 +19,7 @@ import json
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from hbench.diagnose import calibrate, generator
@@ -144,3 +145,14 @@ def test_loop_type_breakdown_counts_hits_and_false_alarms() -> None:
     assert out["level"] == (1, 2, 1, 1)
     assert out["flow"] == (0, 0, 0, 1)
     assert out["slow"] == (0, 0, 0, 0)
+
+
+def test_the_valve_position_is_returned_beside_the_record_never_in_it():
+    gen = generator
+    case = gen.loop_cases(1, 0)[0]
+    rec, u = gen.simulate_loop_truth(case)
+    np.testing.assert_array_equal(rec.y, gen.simulate_loop(case).y)
+    assert u.shape == rec.x[0].shape and "u" not in rec.meta
+    assert case.cls == "stiction" and np.any(u != rec.x[0])  # the valve sticks somewhere
+    row = calibrate.valve_position_gain(case)
+    assert np.isfinite(row["fit_x"]) and np.isfinite(row["gain_u"])

@@ -393,6 +393,62 @@ def main_patterns(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
+def valve_position_gain(case: gen.LoopCase) -> dict[str, Any]:
+    """How much the TRUE valve position ``u`` would improve the linear output-error model of a
+    synthetic plant loop over the controller output ``x`` (whole record, points of fit): the
+    most any valve class fitted through the dynamics could gain if its search were perfect."""
+    from hbench.diagnose import classes, core
+    from hbench.diagnose import nominal as nm
+
+    rec, u = gen.simulate_loop_truth(case)
+    with core.transient(False):
+        ctx = nm.make_context(rec)
+        fit = {}
+        for name, v in (("x", ctx.x), ("u", u)):
+            lin = classes.select_linear(
+                v, ctx.y, ctx.all_idx, na_values=nm.NA_DYNAMIC, delays=nm.DELAYS_DYNAMIC
+            )
+            fit[name] = core.fit_percent(ctx.y, lin.fit.yhat)
+    return {
+        "name": case.name,
+        "cls": case.cls,
+        "loop": case.loop,
+        "disturbance": case.disturbance,
+        "fit_x": fit["x"],
+        "gain_u": fit["u"] - fit["x"],
+    }
+
+
+def main_oracle(argv: Sequence[str] | None = None) -> int:
+    """``python -m hbench.diagnose.calibrate oracle [--n N] [--start S] [--jobs J]``: the gain
+    of the true valve position over the controller output (:func:`valve_position_gain`) on the
+    synthetic loops with a sticking valve, per disturbance: where it is small or negative no
+    valve model fitted from ``x`` can find the valve by its fit."""
+    ap = argparse.ArgumentParser(prog="python -m hbench.diagnose.calibrate oracle")
+    ap.add_argument("--n", type=int, default=128)
+    ap.add_argument("--start", type=int, default=0)
+    ap.add_argument("--jobs", type=int, default=2)
+    args = ap.parse_args(argv)
+    cases = [c for c in gen.loop_cases(args.n, args.start) if c.cls == "stiction"]
+    if args.jobs > 1:
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(args.jobs) as pool:
+            rows = list(pool.map(valve_position_gain, cases, chunksize=1))
+    else:
+        rows = [valve_position_gain(c) for c in cases]
+    for r in sorted(rows, key=lambda r: r["gain_u"]):
+        print(f"{r['name']:40s} fit from x {r['fit_x']:6.1f}  gain of u {r['gain_u']:+7.1f}")
+    for dist in gen.LOOP_DISTURBANCES:
+        g = np.array([r["gain_u"] for r in rows if r["disturbance"] == dist])
+        if g.size:
+            print(
+                f"{dist:9s} gain of u >= 3 points: {int(np.sum(g >= 3))}/{g.size} "
+                f"(median {np.median(g):+.1f})"
+            )
+    return 0
+
+
 if __name__ == "__main__":  # pragma: no cover
     if len(sys.argv) > 1 and sys.argv[1] == "real":
         sys.exit(main_real(sys.argv[2:]))
@@ -400,4 +456,6 @@ if __name__ == "__main__":  # pragma: no cover
         sys.exit(main_loops(sys.argv[2:]))
     if len(sys.argv) > 1 and sys.argv[1] == "patterns":
         sys.exit(main_patterns(sys.argv[2:]))
+    if len(sys.argv) > 1 and sys.argv[1] == "oracle":
+        sys.exit(main_oracle(sys.argv[2:]))
     sys.exit(main())

@@ -615,6 +615,12 @@ def simulate_loop(case: LoopCase) -> Record:
     """The plant log of ``case``: ``x`` the controller output (OP, %), ``y`` the measured
     process variable, ``r`` the set point; ``p = 1``, ``h = 10 s``. The loop runs 300 samples
     before the log starts, so the log begins in steady operation."""
+    return simulate_loop_truth(case)[0]
+
+
+def simulate_loop_truth(case: LoopCase) -> tuple[Record, np.ndarray]:
+    """:func:`simulate_loop`'s record and the valve position ``u`` over the log (never part of
+    the record: a detector sees only what a plant historian logs)."""
     from hbench import nonlinearities as nls
 
     rng = np.random.default_rng(np.random.SeedSequence([20250602, case.seed]))
@@ -688,7 +694,7 @@ def simulate_loop(case: LoopCase) -> Record:
         u_hist[i] = u
     pv0 = float(rng.uniform(10.0, 100.0))
     sl = slice(warm, n)
-    return Record(
+    record = Record(
         y=(pv0 + ym[sl])[None, :],
         x=x[sl][None, :],
         r=(pv0 + sp[sl])[None, :],
@@ -697,6 +703,7 @@ def simulate_loop(case: LoopCase) -> Record:
         source=case.name,
         meta={"case": case.as_dict()},
     )
+    return record, u_hist[sl].copy()
 
 
 def loop_cases(n: int, start: int = 0) -> list[LoopCase]:

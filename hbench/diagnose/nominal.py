@@ -54,6 +54,12 @@ slow disturbances (the differenced route was taken on 19 to 66 of the 96 non-lev
 which then lost their detections), and in closed loop the unmeasured inflow the controller
 cancels biases an output-error model of ``dy`` (it picks the longest delay), so none was
 adopted (``docs/experiments/integrating-route.md``).
+
+Where the misses come from (``python -m hbench.diagnose.calibrate oracle``): on 55 of the 64
+design loops with a sticking valve, the TRUE valve position fits the PV worse through the best
+linear model than the controller output does (input disturbances the controller cancels make
+``x`` the better regressor), so no valve class fitted from ``x`` can win there; on the other 9
+this detector finds 8 (``docs/experiments/valve-position-ceiling.md``).
 """
 
 from __future__ import annotations
