@@ -58,8 +58,9 @@ class Controller:
         s = state["s"]
         x = self.D * e
         if s.shape[1]:
-            x = x + s @ self.C
-            s = s @ self.A.T + e[:, None] * self.B[None, :]
+            # einsum, not @: a run's numbers must not depend on how many runs share the batch
+            x = x + np.einsum("rl,l->r", s, self.C)
+            s = np.einsum("rl,ml->rm", s, self.A) + e[:, None] * self.B[None, :]
         buf = state["buf"]
         if self.delay:
             x, buf = buf[:, 0].copy(), np.concatenate([buf[:, 1:], x[:, None]], axis=1)

@@ -488,7 +488,9 @@ def select_structure(
         v = np.ones((R, p, int(na) + 1))
         v[:, :, 1:] = -np.stack([fit(reg, all_runs)[0] for reg in regs], axis=1)
         M = np.stack([reg.all_moments() for reg in regs], axis=1)  # (R, s2, na+1, na+1)
-        ms = np.einsum("rsa,rtab,rsb->rst", v, M, v, optimize=True)
+        # two plain einsums, not an optimised path: that one contracts one run differently
+        # from many, and a run's numbers must not depend on the runs it is batched with
+        ms = np.einsum("rsa,rsta->rst", v, np.einsum("rtab,rsb->rsta", M, v))
         C[:, i] = pp.aic(ms, int(na), regs[0].n)
     V = np.einsum("rass->ras", C)
     allowed = np.ones(p, bool)

@@ -138,7 +138,7 @@ class QuietRegression:
     def target(self) -> np.ndarray:
         """``Delta y(t_j)`` per run, ``(runs, n)``."""
         if "target" not in self._cache:
-            self._cache["target"] = self.dy[:, self.t]
+            self._cache["target"] = np.take(self.dy, self.t, axis=1)
         return self._cache["target"]
 
     @property
@@ -146,7 +146,7 @@ class QuietRegression:
         """``-[Delta y(t_j - 1) .. Delta y(t_j - na)]`` per run, ``(runs, n, na)``."""
         if "phi" not in self._cache:
             lags = np.arange(1, self._na + 1)
-            self._cache["phi"] = -self.dy[:, self.t[:, None] - lags[None, :]]
+            self._cache["phi"] = -np.take(self.dy, self.t[:, None] - lags[None, :], axis=1)
         return self._cache["phi"]
 
     def all_moments(self) -> np.ndarray:
@@ -156,7 +156,9 @@ class QuietRegression:
             M = M / len(self.phases)
             sign = np.ones(self._na + 1)
             sign[1:] = -1.0
-            self._cache["M"] = M * sign[:, None] * sign[None, :]
+            # C order whatever the number of runs (the fancy-indexed blocks are laid out
+            # differently for one run than for many, and matmul's rounding follows the layout)
+            self._cache["M"] = np.ascontiguousarray(M * sign[:, None] * sign[None, :])
         return self._cache["M"]
 
     def moments(self) -> tuple[np.ndarray, np.ndarray]:
@@ -284,7 +286,8 @@ def iv_moments(reg: QuietRegression, r: np.ndarray, m: int, lag0: int = 1) -> np
         t0, t1 = kk[0] * p + c, kk[-1] * p + c
         for i in range(na + 1):
             col = reg.dy[:, t0 - i : t1 - i + 1 : p]
-            out[:, :, i] += np.einsum("rnm,rn->rm", Z, col, optimize=True) * (-1.0 if i else 1.0)
+            # a plain einsum: the optimised path contracts one run differently from many
+            out[:, :, i] += np.einsum("rnm,rn->rm", Z, col) * (-1.0 if i else 1.0)
         n += kk.size
     return out / max(n, 1)
 
@@ -302,6 +305,16 @@ def aic(ms: np.ndarray, na: int, K: int) -> np.ndarray:
 
 
 # --- numerator (eqs. 17, 18, 21) ---------------------------------------------------------------
+
+
+def take_periods(a: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """``a[:, t]`` for an index array ``t`` of any shape, in C order.
+
+    ``a[:, t]`` lays the result out with the run axis innermost when ``t`` is 2-D, but not for
+    one run; reductions and products then sum in another order, and a run's numbers would
+    depend on the runs batched with it. ``np.take`` gives the same layout for any batch.
+    """
+    return np.take(a, t, axis=1)
 
 
 def filtered_output(y: np.ndarray, a: np.ndarray) -> np.ndarray:
@@ -327,7 +340,7 @@ def phase_variances(dw: np.ndarray, p: int, shift: int, t_min: int) -> np.ndarra
     """``Var{Delta w^(l)}``, l = 1..p (the paper's Table 2): mean square over common periods."""
     k = common_periods(dw, p, shift, t_min, p)
     t = k[:, None] * p + np.arange(1, p + 1)[None, :] + shift
-    return np.mean(dw[:, t] ** 2, axis=1)
+    return np.mean(take_periods(dw, t) ** 2, axis=1)
 
 
 def b_lsm(
@@ -342,7 +355,7 @@ def b_lsm(
     """
     k = common_periods(dw, p, shift, t_min, nb)
     t = k[:, None] * p + np.arange(1, nb + 1)[None, :] + shift
-    D = dw[:, t]  # (R, n, nb)
+    D = take_periods(dw, t)  # (R, n, nb)
     d1 = D[:, :, 0]
     den = np.mean(d1**2, axis=1) - 2.0 * sigma2
     b = np.ones((dw.shape[0], nb))
@@ -365,7 +378,7 @@ def b_iv(
     Z, ok = instruments(r, k, m, lag0)
     k, Z = k[ok], Z[:, ok]
     t = k[:, None] * p + np.arange(1, nb + 1)[None, :] + shift
-    D = dw[:, t]
+    D = take_periods(dw, t)
     g = np.einsum("rjm,rj->rm", Z, D[:, :, 0]) / len(k)
     b = np.ones((dw.shape[0], nb))
     gg = np.einsum("rm,rm->r", g, g)
@@ -481,9 +494,11 @@ def inner_signal_ls(sys: SimoSystem, h0: np.ndarray, h1: np.ndarray) -> np.ndarr
     Vt = sys.valid.astype(float).T  # (p, M)
     W = sys.W
     # equation block j couples unknowns j (= U(n-1)) and j+1 (= U(n))
-    a11 = (h1**2) @ Vt  # coefficient of U(n-1)^2
-    a22 = (h0**2) @ Vt
-    a12 = (h0 * h1) @ Vt
+    # einsum, not @: a (runs, p) @ (p, M) product takes another BLAS kernel for one run than
+    # for many, and a run's numbers must not depend on the runs it is batched with
+    a11 = np.einsum("ri,im->rm", h1**2, Vt)  # coefficient of U(n-1)^2
+    a22 = np.einsum("ri,im->rm", h0**2, Vt)
+    a12 = np.einsum("ri,im->rm", h0 * h1, Vt)
     # both right-hand sides in one batched product (R, M, p) @ (R, p, 2): 4x faster than a
     # loop over the p channels on the paper's example
     B = np.matmul(W, np.stack([h1, h0], axis=2))

@@ -211,13 +211,13 @@ def _run_loop(
     Y0pn = np.empty((K, R))
     for n in range(K):
         S[n] = s
-        Y0pn[n] = s @ H
+        Y0pn[n] = np.einsum("rl,l->r", s, H)  # per run: no BLAS kernel chosen by the batch size
         e = r[:, n] - (Y0pn[n] + v_slow[:, n])
         x, cstate = controller.step(e, cstate)
         u, nstate = nonlinearity.step(x, nstate)
         X[n] = x
         U[n] = u
-        s = s @ FpT + u[:, None] * Gp
+        s = np.einsum("rl,lm->rm", s, FpT) + u[:, None] * Gp
     # fast outputs of every period at once: (K, R, p) -> (R, K p)
     y0 = np.einsum("krl,il->rki", S, lp.Ob) + (U.T)[:, :, None] * lp.Db
     y0[:, :, 0] = Y0pn.T  # the very values the controller read (same rounding)

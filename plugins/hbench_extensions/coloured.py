@@ -37,7 +37,7 @@ def quiet_autocovariance(
         k = kl if k is None else np.intersect1d(k, kl)
     t = k[:, None] * p + np.asarray(phases)[None, :] + shift  # (n, |Q|)
     lag = np.arange(na + 1)
-    block = dy[:, t[..., None] - lag]  # (R, n, |Q|, na + 1)
+    block = pp.take_periods(dy, t[..., None] - lag)  # (R, n, |Q|, na + 1)
     eps = block[..., 0] + np.einsum("rnqi,ri->rnq", block[..., 1:], theta)
     ph = np.asarray(phases)
     gam = np.zeros((dy.shape[0], lags + 1))
@@ -57,7 +57,7 @@ def b_compensated(dw: np.ndarray, gamma: np.ndarray, p: int, shift: int, nb: int
     ``+sigma^2``."""
     k = pp.common_periods(dw, p, shift, pp.first_valid(dw), nb)
     t = k[:, None] * p + np.arange(1, nb + 1)[None, :] + shift
-    D = dw[:, t]
+    D = pp.take_periods(dw, t)
     d1 = D[:, :, 0]
     b = np.ones((dw.shape[0], nb))
     den = np.mean(d1**2, axis=1) - gamma[:, 0]

@@ -110,7 +110,7 @@ def b_gmm(
     Z, ok = pp.instruments(r, k, m, lag0)
     k, Z = k[ok], Z[:, ok]
     n = max(k.size, 1)
-    D = dw[:, k[:, None] * p + np.arange(1, nb + 1)[None, :] + shift]  # (R, n, nb)
+    D = pp.take_periods(dw, k[:, None] * p + np.arange(1, nb + 1)[None, :] + shift)  # (R, n, nb)
     W = np.linalg.pinv(np.matmul(Z.transpose(0, 2, 1), Z) / n, hermitian=True)
     c = np.einsum("rjm,rjl->rml", Z, D) / n  # (R, M, nb)
     Wg = np.einsum("rml,rl->rm", W, c[:, :, 0])
