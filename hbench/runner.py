@@ -173,6 +173,13 @@ def run_cell(
         Worker processes (forked) computing chunks in parallel; the rows are the same whatever
         ``jobs`` (but for the ``seconds`` quantity). With ``jobs > 1`` the cell is cut into a
         multiple of ``jobs`` chunks of near-equal size (at most ``chunk`` runs each).
+
+    Notes
+    -----
+    The cell computes under :func:`hbench.runtime.batch_settings`: one BLAS thread for its
+    duration, and (once per process, for good) glibc's allocator with fixed mmap and trim
+    thresholds, so freed memory stays with the process (``HBENCH_TUNE_MALLOC=0`` leaves the
+    allocator alone).
     """
     if int(jobs) < 1:
         raise InputError(f"jobs must be >= 1, got {jobs}")

@@ -24,8 +24,8 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
-import ctypes.util
 import os
+import sys
 from collections.abc import Iterator
 
 #: glibc's ``mallopt`` parameters (malloc.h).
@@ -46,11 +46,10 @@ def tune_allocator() -> bool:
     if "done" in _allocator_state:
         return _allocator_state["done"]
     ok = False
-    if os.environ.get("HBENCH_TUNE_MALLOC", "1") != "0":
-        name = ctypes.util.find_library("c")
+    if os.environ.get("HBENCH_TUNE_MALLOC", "1") != "0" and sys.platform.startswith("linux"):
         try:
-            libc = ctypes.CDLL(name) if name else None
-            if libc is not None and hasattr(libc, "gnu_get_libc_version"):
+            libc = ctypes.CDLL(None)  # the C library already loaded (no ldconfig subprocess)
+            if hasattr(libc, "gnu_get_libc_version") and hasattr(libc, "mallopt"):
                 ok = bool(libc.mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD)) and bool(
                     libc.mallopt(_M_TRIM_THRESHOLD, TRIM_THRESHOLD)
                 )

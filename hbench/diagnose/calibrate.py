@@ -205,7 +205,7 @@ def score_stictiongpt(
                 "status": res["status"],
                 "class": cls,
                 "verdict": verdict,
-                "correct": verdict == r["label"],
+                "correct": res["status"] == 0 and verdict == r["label"],
                 "message": res.get("message", ""),
                 "scores": res.get("nonlinearity", {}).get("scores", {}),
                 "cause": res.get("cause"),
