@@ -12,9 +12,10 @@ metrics + tidy rows, batched, against the naive baseline of ``naive.py`` in the 
 The speed-ups (runs per second of the batched path over each baseline) are printed at the end
 and stored in ``extra_info``; the naive runs are checked to give the batched path's fitness.
 
-Measured on the project's idle 2-core machine (2026-11-22, session 3): 900 runs/s in one
-process, 1310 with ``jobs=2``, against the issue's target of 3000 (not met); session 2 measured
-650 and 990. The gain came from the process settings of :mod:`hbench.runtime` (one BLAS thread:
+Measured on the project's idle 2-core machine (2026-11-22, session 3): 810-825 runs/s in one
+process, 1195-1210 with ``jobs=2``, against the issue's target of 3000 (not met); session 2
+measured 650 and 990. (900-930 and 1310-1330 before a run's numbers were made independent of
+the runs batched with it: per-run einsums instead of BLAS products over runs, ~10 %.) The gain came from the process settings of :mod:`hbench.runtime` (one BLAS thread:
 OpenBLAS spread every small product over both cores, 2.2 s of CPU for 1.4 s of wall time; glibc's
 allocator with fixed mmap/trim thresholds: ~130 000 page faults and 0.35 s of system time per
 1000 runs before) and from chunks balanced over the workers (1000 runs were 5 chunks on 2 workers,
