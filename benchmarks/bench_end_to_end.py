@@ -14,20 +14,21 @@ and stored in ``extra_info``; the naive runs are checked to give the batched pat
 
 Measured on the project's idle 2-core machine (2026-11-22, session 3): 810-825 runs/s in one
 process, 1195-1210 with ``jobs=2``, against the issue's target of 3000 (not met); session 2
-measured 650 and 990. (900-930 and 1310-1330 before a run's numbers were made independent of
-the runs batched with it: per-run einsums instead of BLAS products over runs, ~10 %.) The gain came from the process settings of :mod:`hbench.runtime` (one BLAS thread:
-OpenBLAS spread every small product over both cores, 2.2 s of CPU for 1.4 s of wall time; glibc's
-allocator with fixed mmap/trim thresholds: ~130 000 page faults and 0.35 s of system time per
-1000 runs before) and from chunks balanced over the workers (1000 runs were 5 chunks on 2 workers,
-3 rounds). What still dominates, ~1.1 s of CPU per 1000 runs, no single hot spot: the closed loop
-over 833 slow steps (~0.13 s, a Python loop vectorised over runs), per-run noise and reference
-streams (~0.1 s: seeding, Gaussian draws, ``lfilter``), two structure selections per chunk
-(~0.3 s, of which ~0.13 s are batched 2x2..4x4 pseudo-inverses through ``eigh``), the tidy rows
-(~0.1 s, mostly pandas' string columns) and whole-record numpy passes over ``(runs, K p)`` arrays
-(``A(q) y``, ``Delta w``, the SIMO blocks, eq. 27, the fitness). With ``jobs=2`` each worker's
-first chunk pays ~22 000 copy-on-write page faults (+0.08 s) and the two processes reach 1.45x
-one. 3000 runs/s on 2 cores needs ~0.67 ms of CPU per run against ~1.1 ms now: compiled kernels
-fusing those passes, with the numpy path kept as the reference.
+measured 650 and 990. (900-930 and 1310-1330 before a run's numbers were made independent of the
+runs batched with it: per-run einsums instead of BLAS products over runs, ~10 %.) The gain came
+from the process settings of :mod:`hbench.runtime` (one BLAS thread: OpenBLAS spread every small
+product over both cores, 2.2 s of CPU for 1.4 s of wall time; glibc's allocator with fixed
+mmap/trim thresholds: ~130 000 page faults and 0.35 s of system time per 1000 runs before) and from
+chunks balanced over the workers (1000 runs were 5 chunks on 2 workers, 3 rounds). What still
+dominates, ~1.2 s of CPU per 1000 runs, no single hot spot: the closed loop over 833 slow steps
+(~0.2 s, a Python loop vectorised over runs, per-run einsums), per-run noise and reference streams
+(~0.1 s: seeding, Gaussian draws, ``lfilter``), two structure selections per chunk (~0.3 s, of
+which ~0.13 s are batched 2x2..4x4 pseudo-inverses through ``eigh``), the tidy rows (~0.1 s, mostly
+pandas' string columns) and whole-record numpy passes over ``(runs, K p)`` arrays (``A(q) y``,
+``Delta w``, the SIMO blocks, eq. 27, the fitness). With ``jobs=2`` each worker's first chunk pays
+~22 000 copy-on-write page faults (+0.08 s) and the two processes reach 1.45x one. 3000 runs/s on 2
+cores needs ~0.67 ms of CPU per run against ~1.2 ms now: compiled kernels fusing those passes, with
+the numpy path kept as the reference.
 """
 
 from __future__ import annotations

@@ -137,12 +137,17 @@ class ColoredNoiseLSM(Identifier):
             phases = tuple(range(nb + 1, p + 1))
             J = len(phases) - 1 if self.lags is None else min(self.lags, len(phases) - 1)
             gamma = np.zeros((idx.size, J + 1))
-            for _ in range(self.iterations):
-                gamma = quiet_autocovariance(reg.dy, theta, p, phases, tau, J)
-                new = np.einsum("rik,rk->ri", Rinv, f - noise_bias(theta, gamma))
-                change = np.max(np.abs(new - theta)) / max(np.max(np.abs(theta)), 1e-300)
-                theta = new
-                if change < 1e-10:
+            done = np.zeros(idx.size, bool)  # each run stops at its own fixed point, so its
+            for _ in range(self.iterations):  # estimate does not depend on its batch
+                g = quiet_autocovariance(reg.dy, theta, p, phases, tau, J)
+                new = np.einsum("rik,rk->ri", Rinv, f - noise_bias(theta, g))
+                change = np.max(np.abs(new - theta), axis=1) / np.maximum(
+                    np.max(np.abs(theta), axis=1), 1e-300
+                )
+                gamma = np.where(done[:, None], gamma, g)
+                theta = np.where(done[:, None], theta, new)
+                done |= change < 1e-10
+                if done.all():
                     break
             for j, i in enumerate(idx):
                 gammas[int(i)] = gamma[j]

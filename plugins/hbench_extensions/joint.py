@@ -50,12 +50,15 @@ def joint_refine(
 
     Minimises ``||W(a) - H(b) U*(a, b)||^2`` over ``(a, b)`` (variable projection: U eliminated
     by eq. 27 at every step), from ``theta0``; forward-difference Jacobian, one step size per run.
+    Each run is damped by its own Hessian's diagonal (Marquardt) and stops when it has converged,
+    so a run's estimate does not depend on the runs batched with it.
     """
     theta = theta0.copy()
     R, n = theta.shape
     lam = np.full(R, 1e-3)
     res, _, _ = _simo_residual(y, theta, na, nb, p, tau, t_min)
     cost = np.sum(res**2, axis=(1, 2))
+    done = np.zeros(R, bool)
     for _ in range(iterations):
         J = np.empty((R, res[0].size, n))
         for i in range(n):
@@ -66,18 +69,20 @@ def joint_refine(
             J[:, :, i] = ((r_i - res) / step[:, None, None]).reshape(R, -1)
         g = np.einsum("rki,rk->ri", J, res.reshape(R, -1))
         Hm = np.matmul(J.transpose(0, 2, 1), J)
-        damp = lam[:, None, None] * np.diag(np.diag(Hm.mean(axis=0)) + 1e-300)[None]
-        delta = -np.linalg.solve(Hm + damp * np.eye(n)[None], g[..., None])[..., 0]
+        diag = np.diagonal(Hm, axis1=1, axis2=2) + 1e-300  # (R, n): the run's own scale
+        damp = lam[:, None, None] * (diag[:, :, None] * np.eye(n)[None])
+        delta = -np.linalg.solve(Hm + damp, g[..., None])[..., 0]
         trial = theta + delta
         r_new, _, _ = _simo_residual(y, trial, na, nb, p, tau, t_min)
         c_new = np.sum(r_new**2, axis=(1, 2))
-        better = c_new < cost
+        better = (c_new < cost) & ~done  # a converged run keeps its estimate
         theta = np.where(better[:, None], trial, theta)
         res = np.where(better[:, None, None], r_new, res)
         rel = np.where(better, (cost - c_new) / np.maximum(cost, 1e-300), 0.0)
         cost = np.where(better, c_new, cost)
-        lam = np.where(better, lam / 3.0, lam * 5.0)
-        if np.all((rel < tol) & (better | (lam > 1e6))):
+        lam = np.where(done, lam, np.where(better, lam / 3.0, lam * 5.0))
+        done |= (rel < tol) & (better | (lam > 1e6))
+        if done.all():
             break
     return theta
 
