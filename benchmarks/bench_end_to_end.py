@@ -12,8 +12,8 @@ metrics + tidy rows, batched, against the naive baseline of ``naive.py`` in the 
 The speed-ups (runs per second of the batched path over each baseline) are printed at the end
 and stored in ``extra_info``; the naive runs are checked to give the batched path's fitness.
 
-Measured on the project's idle 2-core machine (2026-11-22, session 3): 810-825 runs/s in one
-process, 1195-1210 with ``jobs=2``, against the issue's target of 3000 (not met); session 2
+Measured on the project's idle 2-core machine (2026-11-22, session 3): 820-840 runs/s in one
+process, 1270-1290 with ``jobs=2``, against the issue's target of 3000 (not met); session 2
 measured 650 and 990. (900-930 and 1310-1330 before a run's numbers were made independent of the
 runs batched with it: per-run einsums instead of BLAS products over runs, ~10 %.) The gain came
 from the process settings of :mod:`hbench.runtime` (one BLAS thread: OpenBLAS spread every small
@@ -25,10 +25,11 @@ dominates, ~1.2 s of CPU per 1000 runs, no single hot spot: the closed loop over
 (~0.1 s: seeding, Gaussian draws, ``lfilter``), two structure selections per chunk (~0.3 s, of
 which ~0.13 s are batched 2x2..4x4 pseudo-inverses through ``eigh``), the tidy rows (~0.1 s, mostly
 pandas' string columns) and whole-record numpy passes over ``(runs, K p)`` arrays (``A(q) y``,
-``Delta w``, the SIMO blocks, eq. 27, the fitness). With ``jobs=2`` each worker's first chunk pays
-~22 000 copy-on-write page faults (+0.08 s) and the two processes reach 1.45x one. 3000 runs/s on 2
-cores needs ~0.67 ms of CPU per run against ~1.2 ms now: compiled kernels fusing those passes, with
-the numpy path kept as the reference.
+``Delta w``, the SIMO blocks, eq. 27, the fitness). A fresh worker's first chunk pays ~22 000
+copy-on-write page faults (+0.08 s), so with ``jobs=2`` the parent computes every other chunk
+itself (warm) and one worker the rest: 1.55x one process (1.45x with two workers and an idle
+parent). 3000 runs/s on 2 cores needs ~0.67 ms of CPU per run against ~1.2 ms now: compiled kernels
+fusing those passes, with the numpy path kept as the reference.
 """
 
 from __future__ import annotations
