@@ -170,9 +170,9 @@ def run_cell(
     keep_example : bool
         Keep run 0's x, true U and each method's U for plots.
     jobs : int
-        Worker processes (forked) computing chunks in parallel; the rows are the same whatever
-        ``jobs`` (but for the ``seconds`` quantity). With ``jobs > 1`` the cell is cut into a
-        multiple of ``jobs`` chunks of near-equal size (at most ``chunk`` runs each).
+        Processes computing the chunks: this one and ``jobs - 1`` forked workers. The rows are
+        the same whatever ``jobs`` (but for the ``seconds`` quantity). With ``jobs > 1`` the cell
+        is cut into a multiple of ``jobs`` chunks of near-equal size (at most ``chunk`` runs each).
 
     Notes
     -----
