@@ -15,12 +15,15 @@ from __future__ import annotations
 import argparse
 import collections
 import sys
-from collections.abc import Iterable, Sequence
-from typing import Any
+from collections.abc import Callable, Iterable, Sequence
+from typing import Any, TypeVar
 
 import numpy as np
 
 from hbench.diagnose import generator as gen
+
+T = TypeVar("T")
+R = TypeVar("R")
 
 
 def run_case(case: gen.Case) -> dict[str, Any]:
@@ -54,14 +57,19 @@ def run_case(case: gen.Case) -> dict[str, Any]:
     return row
 
 
-def run(cases: Sequence[gen.Case], jobs: int = 1) -> list[dict[str, Any]]:
-    """Rows for ``cases`` (in order), on ``jobs`` processes."""
+def parallel_map(fn: Callable[[T], R], items: Sequence[T], jobs: int = 1) -> list[R]:
+    """``[fn(item) for item in items]`` (in order), on ``jobs`` processes."""
     if jobs <= 1:
-        return [run_case(c) for c in cases]
+        return [fn(item) for item in items]
     from concurrent.futures import ProcessPoolExecutor
 
     with ProcessPoolExecutor(jobs) as pool:
-        return list(pool.map(run_case, cases, chunksize=1))
+        return list(pool.map(fn, items, chunksize=1))
+
+
+def run(cases: Sequence[gen.Case], jobs: int = 1) -> list[dict[str, Any]]:
+    """Rows for ``cases`` (in order), on ``jobs`` processes."""
+    return parallel_map(run_case, cases, jobs)
 
 
 def confusion(
@@ -188,13 +196,7 @@ def score_stictiongpt(
 
     rows = [r for r in stictiongpt_index(folder) if r["split"] in splits]
     paths = [Path(folder) / r["file"] for r in rows]
-    if jobs > 1:
-        from concurrent.futures import ProcessPoolExecutor
-
-        with ProcessPoolExecutor(jobs) as pool:
-            results = list(pool.map(run_plant_log, paths, chunksize=1))
-    else:
-        results = [run_plant_log(p) for p in paths]
+    results = parallel_map(run_plant_log, paths, jobs)
     out = []
     for r, res in zip(rows, results, strict=True):
         cls = res.get("nonlinearity", {}).get("class") if res["status"] == 0 else None
@@ -320,22 +322,22 @@ def loop_type_verdicts(rows: Sequence[dict[str, Any]]) -> dict[str, tuple[int, i
     return out
 
 
+def loop_arguments(command: str, jobs: bool = True) -> argparse.ArgumentParser:
+    """The options of the commands on synthetic plant loops: ``--n``, ``--start`` and, when
+    the command runs in parallel, ``--jobs``."""
+    ap = argparse.ArgumentParser(prog=f"python -m hbench.diagnose.calibrate {command}")
+    ap.add_argument("--n", type=int, default=128)
+    ap.add_argument("--start", type=int, default=0)
+    if jobs:
+        ap.add_argument("--jobs", type=int, default=2)
+    return ap
+
+
 def main_loops(argv: Sequence[str] | None = None) -> int:
     """``python -m hbench.diagnose.calibrate loops [--n N] [--start S] [--jobs J]``: the stiction
     verdict on synthetic plant loops (:func:`hbench.diagnose.generator.loop_cases`)."""
-    ap = argparse.ArgumentParser(prog="python -m hbench.diagnose.calibrate loops")
-    ap.add_argument("--n", type=int, default=128)
-    ap.add_argument("--start", type=int, default=0)
-    ap.add_argument("--jobs", type=int, default=2)
-    args = ap.parse_args(argv)
-    cases = gen.loop_cases(args.n, args.start)
-    if args.jobs > 1:
-        from concurrent.futures import ProcessPoolExecutor
-
-        with ProcessPoolExecutor(args.jobs) as pool:
-            rows = list(pool.map(run_loop, cases, chunksize=1))
-    else:
-        rows = [run_loop(c) for c in cases]
+    args = loop_arguments("loops").parse_args(argv)
+    rows = parallel_map(run_loop, gen.loop_cases(args.n, args.start), args.jobs)
     for r in rows:
         ok = r["verdict"] == (r["cls"] == "stiction")
         print(f"{'ok ' if ok else 'BAD'} {r['name']:40s} -> {r['found_cls']}")
@@ -375,10 +377,7 @@ def main_patterns(argv: Sequence[str] | None = None) -> int:
     """``python -m hbench.diagnose.calibrate patterns [--n N] [--start S]``: how often each
     OP-PV pattern test (:func:`pattern_tests`) calls stiction on the synthetic plant loops,
     per true valve class."""
-    ap = argparse.ArgumentParser(prog="python -m hbench.diagnose.calibrate patterns")
-    ap.add_argument("--n", type=int, default=128)
-    ap.add_argument("--start", type=int, default=0)
-    args = ap.parse_args(argv)
+    args = loop_arguments("patterns", jobs=False).parse_args(argv)
     rows = []
     for case in gen.loop_cases(args.n, args.start):
         rec = gen.simulate_loop(case)
@@ -424,19 +423,9 @@ def main_oracle(argv: Sequence[str] | None = None) -> int:
     of the true valve position over the controller output (:func:`valve_position_gain`) on the
     synthetic loops with a sticking valve, per disturbance: where it is small or negative no
     valve model fitted from ``x`` can find the valve by its fit."""
-    ap = argparse.ArgumentParser(prog="python -m hbench.diagnose.calibrate oracle")
-    ap.add_argument("--n", type=int, default=128)
-    ap.add_argument("--start", type=int, default=0)
-    ap.add_argument("--jobs", type=int, default=2)
-    args = ap.parse_args(argv)
+    args = loop_arguments("oracle").parse_args(argv)
     cases = [c for c in gen.loop_cases(args.n, args.start) if c.cls == "stiction"]
-    if args.jobs > 1:
-        from concurrent.futures import ProcessPoolExecutor
-
-        with ProcessPoolExecutor(args.jobs) as pool:
-            rows = list(pool.map(valve_position_gain, cases, chunksize=1))
-    else:
-        rows = [valve_position_gain(c) for c in cases]
+    rows = parallel_map(valve_position_gain, cases, args.jobs)
     for r in sorted(rows, key=lambda r: r["gain_u"]):
         print(f"{r['name']:40s} fit from x {r['fit_x']:6.1f}  gain of u {r['gain_u']:+7.1f}")
     for dist in gen.LOOP_DISTURBANCES:
@@ -449,13 +438,15 @@ def main_oracle(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
+#: The sub-commands beside the default (synthetic records with hidden effects, :func:`main`).
+COMMANDS = {
+    "real": main_real,
+    "loops": main_loops,
+    "patterns": main_patterns,
+    "oracle": main_oracle,
+}
+
 if __name__ == "__main__":  # pragma: no cover
-    if len(sys.argv) > 1 and sys.argv[1] == "real":
-        sys.exit(main_real(sys.argv[2:]))
-    if len(sys.argv) > 1 and sys.argv[1] == "loops":
-        sys.exit(main_loops(sys.argv[2:]))
-    if len(sys.argv) > 1 and sys.argv[1] == "patterns":
-        sys.exit(main_patterns(sys.argv[2:]))
-    if len(sys.argv) > 1 and sys.argv[1] == "oracle":
-        sys.exit(main_oracle(sys.argv[2:]))
+    if len(sys.argv) > 1 and sys.argv[1] in COMMANDS:
+        sys.exit(COMMANDS[sys.argv[1]](sys.argv[2:]))
     sys.exit(main())
