@@ -172,13 +172,20 @@ def stiction_index(x: np.ndarray) -> float:
     return e_sin / (e_sin + e_tri)
 
 
+def paired(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``x`` and ``y`` as float arrays of one length (a ``ValueError`` otherwise)."""
+    x = np.asarray(x, float)
+    y = np.asarray(y, float)
+    if x.size != y.size:
+        raise ValueError(f"x and y differ in length ({x.size} and {y.size})")
+    return x, y
+
+
 def cross_correlation(x: np.ndarray, y: np.ndarray, max_lag: int) -> np.ndarray:
     """Normalised cross-correlation ``c(tau) = sum x(t) y(t + tau) / (||x|| ||y||)`` of the
     mean-removed series at lags ``-max_lag .. max_lag``."""
-    x = np.asarray(x, float) - np.mean(x)
-    y = np.asarray(y, float) - np.mean(y)
-    if x.size != y.size:
-        raise ValueError(f"x and y differ in length ({x.size} and {y.size})")
+    x, y = paired(x, y)
+    x, y = x - np.mean(x), y - np.mean(y)
     n = x.size
     L = int(min(max_lag, n - 1))
     den = float(np.linalg.norm(x) * np.linalg.norm(y))
@@ -289,10 +296,7 @@ def yamashita_index(x: np.ndarray, y: np.ndarray, band: float = 3.0) -> float:
     float
         ``rho`` in ``[0, 1]``; nan when nothing moves.
     """
-    x = np.asarray(x, float)
-    y = np.asarray(y, float)
-    if x.size != y.size:
-        raise ValueError(f"x and y differ in length ({x.size} and {y.size})")
+    x, y = paired(x, y)
     sx = qualitative_symbols(x, band)
     sy = qualitative_symbols(y, band)
     moving = ~((sx == 0) & (sy == 0))
@@ -338,10 +342,7 @@ def kano_index(x: np.ndarray, y: np.ndarray, band: float = 3.0, min_len: int = 3
     float
         The share in ``[0, 1]``; nan when the OP is constant.
     """
-    x = np.asarray(x, float)
-    y = np.asarray(y, float)
-    if x.size != y.size:
-        raise ValueError(f"x and y differ in length ({x.size} and {y.size})")
+    x, y = paired(x, y)
     if np.ptp(x) == 0:
         return float("nan")
     steady = qualitative_symbols(y, band) == 0
