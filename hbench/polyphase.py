@@ -138,7 +138,7 @@ class QuietRegression:
     def target(self) -> np.ndarray:
         """``Delta y(t_j)`` per run, ``(runs, n)``."""
         if "target" not in self._cache:
-            self._cache["target"] = np.take(self.dy, self.t, axis=1)
+            self._cache["target"] = take_periods(self.dy, self.t)
         return self._cache["target"]
 
     @property
@@ -146,7 +146,7 @@ class QuietRegression:
         """``-[Delta y(t_j - 1) .. Delta y(t_j - na)]`` per run, ``(runs, n, na)``."""
         if "phi" not in self._cache:
             lags = np.arange(1, self._na + 1)
-            self._cache["phi"] = -np.take(self.dy, self.t[:, None] - lags[None, :], axis=1)
+            self._cache["phi"] = -take_periods(self.dy, self.t[:, None] - lags[None, :])
         return self._cache["phi"]
 
     def all_moments(self) -> np.ndarray:
@@ -500,7 +500,7 @@ def inner_signal_ls(sys: SimoSystem, h0: np.ndarray, h1: np.ndarray) -> np.ndarr
     which = which.ravel()
 
     def per_period(h2: np.ndarray) -> np.ndarray:
-        return np.take(np.einsum("ri,ik->rk", h2, Vp), which, axis=1)
+        return take_periods(np.einsum("ri,ik->rk", h2, Vp), which)
 
     W = sys.W
     # equation block j couples unknowns j (= U(n-1)) and j+1 (= U(n))

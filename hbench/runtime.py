@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import functools
 import os
 import sys
 from collections.abc import Iterator
@@ -35,16 +36,13 @@ MMAP_THRESHOLD = 32 << 20
 #: Free memory at the heap top is returned to the system only above this.
 TRIM_THRESHOLD = 1 << 30
 
-_allocator_state: dict[str, bool] = {}
 
-
+@functools.cache
 def tune_allocator() -> bool:
     """Set glibc's mmap and trim thresholds (once per process); ``True`` if they are set.
 
     A no-op returning ``False`` where the C library is not glibc or ``HBENCH_TUNE_MALLOC=0``.
     """
-    if "done" in _allocator_state:
-        return _allocator_state["done"]
     ok = False
     if os.environ.get("HBENCH_TUNE_MALLOC", "1") != "0" and sys.platform.startswith("linux"):
         try:
@@ -55,7 +53,6 @@ def tune_allocator() -> bool:
                 )
         except OSError:
             ok = False
-    _allocator_state["done"] = ok
     return ok
 
 
