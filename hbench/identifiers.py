@@ -434,6 +434,21 @@ def shared_moments(
     return out
 
 
+def _mean_square(dy: np.ndarray, cache: dict[str, Any] | None = None) -> np.ndarray:
+    """``nanmean(dy**2, axis=1)`` (the same sums: nan squares zeroed, then ``np.sum``), kept in
+    ``cache`` so that the selections of several methods on one record compute it once."""
+    key = "mean-square-delta-y"
+    if cache is not None and key in cache:
+        return cache[key]
+    sq = np.square(dy)
+    bad = np.isnan(sq)
+    sq[bad] = 0.0
+    out = np.sum(sq, axis=1) / np.sum(~bad, axis=1, dtype=np.intp)
+    if cache is not None:
+        cache[key] = out
+    return out
+
+
 def select_structure(
     y: np.ndarray,
     p: int,
@@ -464,7 +479,7 @@ def select_structure(
             na_values=np.array([options.na]),
         )
     dy, lm = shared_moments(y, p, largest_order(options), cache)
-    scale = np.nanmean(dy**2, axis=1)
+    scale = _mean_square(dy, cache)
     na_lo, na_hi = options.na_range
     na_values = np.arange(na_lo, na_hi + 1) if options.na is None else np.array([options.na])
     shifts = list(range(p))

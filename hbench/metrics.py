@@ -33,35 +33,52 @@ def fitness(
     gain : float or ndarray, optional
         The true b1 (required for ``"gain"``).
     """
-    if scaling not in SCALINGS:
-        raise InputError(f"fitness scaling must be one of {', '.join(SCALINGS)}, got {scaling!r}")
+    return fitnesses(U_est, U, (scaling,), gain)[scaling]
+
+
+def fitnesses(
+    U_est: np.ndarray,
+    U: np.ndarray,
+    scalings: tuple[str, ...] = SCALINGS,
+    gain: float | np.ndarray | None = None,
+) -> dict[str, np.ndarray]:
+    """:func:`fitness` under several scalings, ``{scaling: (runs,)}``; the masks, the centred
+    truth and its norm are computed once for all of them (the same numbers as one by one)."""
+    for scaling in scalings:
+        if scaling not in SCALINGS:
+            raise InputError(
+                f"fitness scaling must be one of {', '.join(SCALINGS)}, got {scaling!r}"
+            )
+    if "gain" in scalings and gain is None:
+        raise InputError("fitness scaling 'gain' needs the true gain b1")
     U_est = np.atleast_2d(U_est)
     U = np.atleast_2d(U)
     m = np.isfinite(U_est) & np.isfinite(U)
     n = m.sum(axis=1)
     e = np.where(m, U_est, 0.0)
     u = np.where(m, U, 0.0)
-    if scaling == "gain":
-        if gain is None:
-            raise InputError("fitness scaling 'gain' needs the true gain b1")
-        us = e / np.broadcast_to(np.asarray(gain, float), (U.shape[0],))[:, None]
-    elif scaling == "ls":
-        with np.errstate(invalid="ignore", divide="ignore"):
-            c = np.sum(e * u, axis=1) / np.sum(e * e, axis=1)
-        us = c[:, None] * e
-    else:
-        with np.errstate(invalid="ignore", divide="ignore"):
-            me = np.sum(e, axis=1) / n
-            mu = np.sum(u, axis=1) / n
-            ec = np.where(m, e - me[:, None], 0.0)
-            c = np.sum(ec * np.where(m, u - mu[:, None], 0.0), axis=1) / np.sum(ec * ec, axis=1)
-        us = c[:, None] * ec + mu[:, None]
     with np.errstate(invalid="ignore", divide="ignore"):
         mean_u = np.sum(u, axis=1) / n
-        num = np.sqrt(np.sum(np.where(m, us - u, 0.0) ** 2, axis=1))
         den = np.sqrt(np.sum(np.where(m, u - mean_u[:, None], 0.0) ** 2, axis=1))
-        out = 100.0 * (1.0 - num / den)
-    return np.where(n > 1, out, np.nan)
+    out = {}
+    for scaling in scalings:
+        if scaling == "gain":
+            us = e / np.broadcast_to(np.asarray(gain, float), (U.shape[0],))[:, None]
+        elif scaling == "ls":
+            with np.errstate(invalid="ignore", divide="ignore"):
+                c = np.sum(e * u, axis=1) / np.sum(e * e, axis=1)
+            us = c[:, None] * e
+        else:
+            with np.errstate(invalid="ignore", divide="ignore"):
+                me = np.sum(e, axis=1) / n
+                mu = np.sum(u, axis=1) / n
+                ec = np.where(m, e - me[:, None], 0.0)
+                c = np.sum(ec * np.where(m, u - mu[:, None], 0.0), axis=1) / np.sum(ec * ec, axis=1)
+            us = c[:, None] * ec + mu[:, None]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            num = np.sqrt(np.sum(np.where(m, us - u, 0.0) ** 2, axis=1))
+            out[scaling] = np.where(n > 1, 100.0 * (1.0 - num / den), np.nan)
+    return out
 
 
 def parameter_errors(

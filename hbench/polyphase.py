@@ -359,11 +359,25 @@ def common_periods(dw: np.ndarray, p: int, shift: int, t_min: int, nb: int) -> n
     return np.intersect1d(k, k_last)
 
 
+def period_block(a: np.ndarray, p: int, k: np.ndarray, shift: int, width: int) -> np.ndarray:
+    """``a[:, k p + shift + l]`` for ``l = 1 .. width``, shape ``(runs, len(k), width)``.
+
+    A strided view when ``k`` is consecutive (as :func:`common_periods` gives), else a C-order
+    gather (:func:`take_periods`). Elementwise results computed from either are the same
+    C-order arrays, so reductions over them sum in the same order.
+    """
+    if k.size and int(k[-1] - k[0]) == k.size - 1:
+        start = int(k[0]) * p + shift + 1
+        stop = int(k[-1]) * p + shift + width + 1
+        return sliding_window_view(a[:, start:stop], width, axis=1)[:, ::p]
+    t = k[:, None] * p + np.arange(1, width + 1)[None, :] + shift
+    return take_periods(a, t)
+
+
 def phase_variances(dw: np.ndarray, p: int, shift: int, t_min: int) -> np.ndarray:
     """``Var{Delta w^(l)}``, l = 1..p (the paper's Table 2): mean square over common periods."""
     k = common_periods(dw, p, shift, t_min, p)
-    t = k[:, None] * p + np.arange(1, p + 1)[None, :] + shift
-    return np.mean(take_periods(dw, t) ** 2, axis=1)
+    return np.mean(np.square(period_block(dw, p, k, shift, p)), axis=1)
 
 
 def b_lsm(
@@ -377,8 +391,7 @@ def b_lsm(
     Returns ``(runs, nb)`` with ``b1 = 1``.
     """
     k = common_periods(dw, p, shift, t_min, nb)
-    t = k[:, None] * p + np.arange(1, nb + 1)[None, :] + shift
-    D = take_periods(dw, t)  # (R, n, nb)
+    D = period_block(dw, p, k, shift, nb)  # (R, n, nb)
     d1 = D[:, :, 0]
     den = np.mean(d1**2, axis=1) - 2.0 * sigma2
     b = np.ones((dw.shape[0], nb))

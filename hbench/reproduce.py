@@ -548,7 +548,7 @@ def _custom_rows(
     import pandas as pd
 
     from hbench.identifiers import identify
-    from hbench.metrics import fitness
+    from hbench.metrics import SCALINGS, fitnesses
     from hbench.simulate import simulate
 
     record, truth = simulate(scenario, runs, np.random.default_rng(seed))
@@ -572,9 +572,8 @@ def _custom_rows(
     for name, method in methods.items():
         est = identify(method, record, options, truth)
         q: dict[str, np.ndarray] = dict(est.params())
-        q["fitness"] = fitness(est.U, truth.U, "gain", gain)
-        q["fitness_ls"] = fitness(est.U, truth.U, "ls")
-        q["fitness_ls_affine"] = fitness(est.U, truth.U, "ls-affine")
+        F = fitnesses(est.U, truth.U, SCALINGS, gain)
+        q["fitness"], q["fitness_ls"], q["fitness_ls_affine"] = F["gain"], F["ls"], F["ls-affine"]
         status = np.where(est.identifiable, "ok", "not-identifiable")
         for quantity, values in q.items():
             frames.append(

@@ -18,9 +18,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from hbench import tidy
 from hbench.errors import InputError
 from hbench.identifiers import Estimate, Identifier, IdentifyOptions, identify
-from hbench.metrics import fitness
+from hbench.metrics import fitnesses
 from hbench.records import Record, Truth
 from hbench.runtime import batch_settings
 from hbench.schema import ID_COLUMNS, TIDY_COLUMNS  # noqa: F401 - re-exported
@@ -57,13 +58,14 @@ def _rows_for(
     ids: Mapping[str, Any],
     start: int,
     known_multiple: int,
-) -> pd.DataFrame:
+) -> tidy.Block:
     R = record.runs
     plant = truth.plant
     true = plant.true_params()
+    F = fitnesses(est.U, truth.U, ("gain", "ls"), plant.gain)
     values: dict[str, tuple[np.ndarray, float]] = {
-        "fitness": (fitness(est.U, truth.U, "gain", plant.gain), np.nan),
-        "fitness_ls": (fitness(est.U, truth.U, "ls"), np.nan),
+        "fitness": (F["gain"], np.nan),
+        "fitness_ls": (F["ls"], np.nan),
         "na": (est.na.astype(float), float(plant.na)),
         "nb": (est.nb.astype(float), float(plant.nb)),
         "tau": (est.tau.astype(float), float(plant.tau(record.p))),
@@ -79,7 +81,7 @@ def _rows_for(
     params = est.params()
     for key, tv in true.items():
         values[key] = (params.get(key, np.full(R, np.nan)), tv)
-    return _frame(
+    return tidy.block(
         method,
         ids,
         start,
@@ -90,46 +92,13 @@ def _rows_for(
     )
 
 
-_ID_DTYPES = {"p": np.int64, "delay": np.int64, "sigma2": float, "snr_target": float}
-
-
-def _frame(
-    method: str,
-    ids: Mapping[str, Any],
-    start: int,
-    values: Mapping[str, tuple[np.ndarray, float]],
-    snr: np.ndarray,
-    status: np.ndarray,
-    error: Sequence[str],
-) -> pd.DataFrame:
-    """Tidy rows, run-major (every quantity of run 0, then run 1 ..), built column-wise."""
-    names = list(values)
-    R, Q = len(snr), len(names)
-    V = np.empty((R, Q))
-    for j, q in enumerate(names):
-        V[:, j] = values[q][0]
-    n = R * Q
-    cols: dict[str, Any] = {c: np.full(n, ids[c], dtype=_ID_DTYPES.get(c, object)) for c in ids}
-    cols.update(
-        method=method,
-        run=np.repeat(np.arange(start, start + R), Q),
-        quantity=np.tile(np.array(names, dtype=object), R),
-        value=V.ravel(),
-        true=np.tile(np.array([values[q][1] for q in names], dtype=float), R),
-        snr=np.repeat(np.asarray(snr, dtype=float), Q),
-        status=np.repeat(np.asarray(status, dtype=object), Q),
-        error=np.repeat(np.asarray(error, dtype=object), Q),
-    )
-    return pd.DataFrame(cols, columns=list(TIDY_COLUMNS))
-
-
 def _failed_rows(
     method: str, truth: Truth, message: str, ids: Mapping[str, Any], start: int
-) -> pd.DataFrame:
+) -> tidy.Block:
     true = truth.plant.true_params()
     R = truth.U.shape[0]
     values = {q: (np.full(R, np.nan), true.get(q, np.nan)) for q in (*QUANTITIES, *true)}
-    return _frame(method, ids, start, values, truth.snr, np.full(R, "failed"), [message] * R)
+    return tidy.block(method, ids, start, values, truth.snr, np.full(R, "failed"), [message] * R)
 
 
 def run_cell(
@@ -199,7 +168,7 @@ def run_cell(
     }
     work = _Work(scenario, dict(methods), options, ids, seq, keep_example)
     pieces = _pieces(runs, chunk, jobs)
-    rows: list[pd.DataFrame] = []
+    rows: list[tidy.Block] = []
     example: dict[str, Any] = {}
     done = 0
     with batch_settings():  # one BLAS thread, glibc's allocator tuned (hbench.runtime)
@@ -210,8 +179,7 @@ def run_cell(
             done += n
             if progress is not None:
                 progress(done, runs)
-    frame = pd.concat(rows, ignore_index=True) if rows else pd.DataFrame(columns=list(TIDY_COLUMNS))
-    return CellResult(rows=frame, example=example)
+    return CellResult(rows=tidy.assemble(rows), example=example)
 
 
 def _pieces(runs: int, chunk: int, jobs: int) -> list[tuple[int, int]]:
@@ -246,7 +214,7 @@ class _Work:
     keep_example: bool
 
 
-def _run_chunk(work: _Work, start: int, n: int) -> tuple[list[pd.DataFrame], dict[str, Any]]:
+def _run_chunk(work: _Work, start: int, n: int) -> tuple[list[tidy.Block], dict[str, Any]]:
     """Runs ``start .. start + n - 1`` of a cell: simulate, identify with every method, score."""
     record, truth = simulate(work.scenario, n, np.random.default_rng(work.seq), start=start)
     example: dict[str, Any] = {}
@@ -282,7 +250,7 @@ def _run_chunk(work: _Work, start: int, n: int) -> tuple[list[pd.DataFrame], dic
 _FORKED: _Work | None = None
 
 
-def _forked_chunk(piece: tuple[int, int]) -> tuple[list[pd.DataFrame], dict[str, Any]]:
+def _forked_chunk(piece: tuple[int, int]) -> tuple[list[tidy.Block], dict[str, Any]]:
     assert _FORKED is not None
     try:
         return _run_chunk(_FORKED, *piece)
@@ -297,7 +265,7 @@ def _forked_chunk(piece: tuple[int, int]) -> tuple[list[pd.DataFrame], dict[str,
 
 def _map_chunks(
     work: _Work, pieces: list[tuple[int, int]], jobs: int
-) -> Iterator[tuple[list[pd.DataFrame], dict[str, Any]]]:
+) -> Iterator[tuple[list[tidy.Block], dict[str, Any]]]:
     """Chunks in order; with ``jobs > 1`` computed by this process and ``jobs - 1`` forked
     worker processes.
 

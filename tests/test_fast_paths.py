@@ -8,6 +8,7 @@ computation is shared rather than reordered (a structure selection reused from t
 from __future__ import annotations
 
 import numpy as np
+import pandas as pd
 import pytest
 from scipy import signal
 
@@ -264,3 +265,86 @@ def test_a_worker_failure_reaches_the_parent(monkeypatch):
     sc = scenarios.build(paper_spec(duration=60.0))
     with pytest.raises(RuntimeError, match="plugin broke"):
         runner.run_cell(sc, runner.methods_from_names(["wang-lsm"]), 4, 0, jobs=2, chunk=2)
+
+
+# --- session 5: shared passes that must give the same bits as the plain lines they replace ---
+
+
+def test_tidy_blocks_assemble_into_the_frame_pandas_builds_from_object_arrays():
+    from hbench import tidy
+
+    rng = np.random.default_rng(3)
+    ids = {
+        "cell": "c1",
+        "nonlinearity": "backlash",
+        "plant": None,
+        "p": 5,
+        "delay": 0,
+        "sigma2": 1e-3,
+        "snr_target": np.nan,
+        "seed": "2026",
+    }
+    blocks, plain = [], []
+    for method, start, R, status, error in (
+        ("wang-lsm", 0, 4, ["ok", "not-identifiable", "ok", "ok"], ["", "why", "", ""]),
+        ("bai-fu", 0, 4, ["failed"] * 4, ["boom (x.py:1)"] * 4),
+        ("wang-lsm", 4, 3, ["ok"] * 3, ["", "", None]),
+    ):
+        values = {q: (rng.standard_normal(R), float(i)) for i, q in enumerate(("a1", "b2", "na"))}
+        snr = rng.random(R)
+        blocks.append(tidy.block(method, ids, start, values, snr, np.array(status), error))
+        Q, n = len(values), R * len(values)
+        cols = {c: np.full(n, v, dtype=tidy.ID_DTYPES.get(c, object)) for c, v in ids.items()}
+        cols.update(
+            method=method,
+            run=np.repeat(np.arange(start, start + R), Q),
+            quantity=np.tile(np.array(list(values), dtype=object), R),
+            value=np.stack([v for v, _ in values.values()], axis=1).ravel(),
+            true=np.tile(np.array([t for _, t in values.values()]), R),
+            snr=np.repeat(snr, Q),
+            status=np.repeat(np.array(status, dtype=object), Q),
+            error=np.repeat(np.array(error, dtype=object), Q),
+        )
+        plain.append(pd.DataFrame(cols, columns=list(tidy.TIDY_COLUMNS)))
+    expected = pd.concat(plain, ignore_index=True)
+    pd.testing.assert_frame_equal(tidy.assemble(blocks), expected, check_exact=True)
+    assert list(tidy.assemble([]).columns) == list(tidy.TIDY_COLUMNS)
+
+
+def test_fitnesses_equal_fitness_one_scaling_at_a_time():
+    from hbench.metrics import SCALINGS, fitness, fitnesses
+
+    rng = np.random.default_rng(8)
+    U = rng.standard_normal((6, 40))
+    est = 1.3 * U + 0.1 * rng.standard_normal((6, 40))
+    est[1, :5] = np.nan
+    est[2] = np.nan
+    F = fitnesses(est, U, SCALINGS, 1.3)
+    for s in SCALINGS:
+        np.testing.assert_array_equal(F[s], fitness(est, U, s, 1.3 if s == "gain" else None))
+    assert np.isnan(F["gain"][2]) and F["gain"][0] > 90
+
+
+@pytest.mark.parametrize(("shift", "width", "t_min"), [(0, 5, 1), (3, 2, 4), (4, 1, 9)])
+def test_period_block_view_equals_the_gather(shift, width, t_min):
+    dw = np.random.default_rng(1).standard_normal((3, 203))
+    k = pp.common_periods(dw, 5, shift, t_min, width)
+    t = k[:, None] * 5 + np.arange(1, width + 1)[None, :] + shift
+    gathered = pp.take_periods(dw, t)
+    view = pp.period_block(dw, 5, k, shift, width)
+    np.testing.assert_array_equal(view, gathered)
+    # reductions over either sum in the same order (the view's squares are C-ordered too)
+    np.testing.assert_array_equal(np.mean(np.square(view), axis=1), np.mean(gathered**2, axis=1))
+    # a non-consecutive k falls back to the gather
+    np.testing.assert_array_equal(pp.period_block(dw, 5, k[::2], shift, width), gathered[:, ::2])
+
+
+def test_mean_square_equals_nanmean():
+    from hbench.identifiers import _mean_square
+
+    d = np.random.default_rng(2).standard_normal((4, 2501))
+    d[:, 0] = np.nan
+    d[2, 40] = np.nan
+    cache: dict = {}
+    np.testing.assert_array_equal(_mean_square(d, cache), np.nanmean(d**2, axis=1))
+    assert _mean_square(d, cache) is cache["mean-square-delta-y"]
