@@ -348,3 +348,16 @@ def test_mean_square_equals_nanmean():
     cache: dict = {}
     np.testing.assert_array_equal(_mean_square(d, cache), np.nanmean(d**2, axis=1))
     assert _mean_square(d, cache) is cache["mean-square-delta-y"]
+
+
+def test_validity_patterns_equal_numpys_unique_rows_in_order_and_layout():
+    rng = np.random.default_rng(5)
+    for M, p in ((1, 3), (40, 5), (9, 7)):
+        valid = rng.random((M, p)) < 0.7
+        valid[: M // 2] = True
+        V, which = pp._validity_patterns(valid)
+        pat, wh = np.unique(valid, axis=0, return_inverse=True)
+        ref = pat.astype(float).T
+        np.testing.assert_array_equal(V, ref)
+        np.testing.assert_array_equal(which, wh.ravel())
+        assert V.strides == ref.strides  # einsum sums in an order that follows the layout
