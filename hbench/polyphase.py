@@ -283,14 +283,16 @@ def instruments(
 def iv_moments(reg: QuietRegression, r: np.ndarray, m: int, lag0: int = 1) -> np.ndarray:
     """``(1/n) sum zeta [Delta y, phi^T]`` over the rows with every instrument defined.
 
-    Computed phase by phase on strided views (the rows of a phase are consecutive periods), so
-    neither the instrument matrix nor the regressors are copied. Returns ``(runs, m, na + 1)``.
+    Phase by phase (the rows of a phase are consecutive periods): the instruments and the lags
+    of ``Delta y`` are strided windows, multiplied as ``Z^T [Delta y, -phi]`` by one batched
+    product per phase. Returns ``(runs, m, na + 1)``.
     """
     p, na, K = reg.lm.p, reg.na, r.shape[1]
     out = np.zeros((r.shape[0], m, na + 1))
     if K < m:  # no row has all its instruments
         return out
     win = sliding_window_view(r, m, axis=1)[..., ::-1]  # win[:, j] = r(j + m - 1) .. r(j)
+    lags = sliding_window_view(reg.dy, na + 1, axis=1)[..., ::-1]  # lags[:, t - na, i] = dy(t - i)
     periods = np.arange(reg.lm.k0, reg.lm.k1 + 1)
     n = 0
     for c, carry in reg.classes:
@@ -300,13 +302,14 @@ def iv_moments(reg: QuietRegression, r: np.ndarray, m: int, lag0: int = 1) -> np
             continue
         kk = periods[ok]
         j0 = kk[0] - carry - lag0 - m + 1
-        Z = win[:, j0 : j0 + kk.size]
-        t0, t1 = kk[0] * p + c, kk[-1] * p + c
-        for i in range(na + 1):
-            col = reg.dy[:, t0 - i : t1 - i + 1 : p]
-            # a plain einsum: the optimised path contracts one run differently from many
-            out[:, :, i] += np.einsum("rnm,rn->rm", Z, col) * (-1.0 if i else 1.0)
+        t0 = kk[0] * p + c
+        Z = win[:, j0 : j0 + kk.size]  # (R, n_c, m)
+        Y = lags[:, t0 - na : t0 - na + (kk.size - 1) * p + 1 : p]  # (R, n_c, na + 1)
+        # a batched product of contiguous copies: the same BLAS call per run whatever the
+        # batch, so a run's numbers do not depend on the runs batched with it
+        out += np.matmul(np.ascontiguousarray(Z.transpose(0, 2, 1)), np.ascontiguousarray(Y))
         n += kk.size
+    out[:, :, 1:] *= -1.0
     return out / max(n, 1)
 
 
@@ -413,14 +416,15 @@ def b_iv(
     k = common_periods(dw, p, shift, t_min, nb)
     Z, ok = instruments(r, k, m, lag0)
     k, Z = k[ok], Z[:, ok]
-    t = k[:, None] * p + np.arange(1, nb + 1)[None, :] + shift
-    D = take_periods(dw, t)
-    g = np.einsum("rjm,rj->rm", Z, D[:, :, 0]) / len(k)
+    D = np.ascontiguousarray(period_block(dw, p, k, shift, nb))  # (R, n, nb)
+    # every (1/K) sum zeta dwl at once, (R, m, nb), by one batched product (the same BLAS call
+    # per run whatever the batch)
+    C = np.matmul(np.ascontiguousarray(Z.transpose(0, 2, 1)), D) / len(k)
+    g = C[:, :, 0]
     b = np.ones((dw.shape[0], nb))
     gg = np.einsum("rm,rm->r", g, g)
     for l in range(2, nb + 1):
-        c = np.einsum("rjm,rj->rm", Z, D[:, :, l - 1]) / len(k)
-        b[:, l - 1] = np.einsum("rm,rm->r", g, c) / gg
+        b[:, l - 1] = np.einsum("rm,rm->r", g, C[:, :, l - 1]) / gg
     return b
 
 
