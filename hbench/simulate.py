@@ -220,17 +220,19 @@ def _run_loop(
     cstate = controller.initial_state(R)
     nstate = nonlinearity.initial_state(R)
     Y0pn = np.empty((K, R))
-    for n in range(K):
-        S[n] = s
-        Y0pn[n] = ordered_products(s, H)[:, 0]
-        e = r[:, n] - (Y0pn[n] + v_slow[:, n])
-        x, cstate = controller.step(e, cstate)
-        u, nstate = nonlinearity.step(x, nstate)
-        X[n] = x
-        U[n] = u
-        s = ordered_products(s, Fp) + u[:, None] * Gp
-    # fast outputs of every period at once: (K, R, p) -> (R, K p)
-    y0 = (ordered_products(S, lp.Ob) + U[:, :, None] * lp.Db).transpose(1, 0, 2).copy()
+    # a diverging loop overflows quietly, as the kernel does: simulate() reports it (UnstableError)
+    with np.errstate(over="ignore", invalid="ignore"):
+        for n in range(K):
+            S[n] = s
+            Y0pn[n] = ordered_products(s, H)[:, 0]
+            e = r[:, n] - (Y0pn[n] + v_slow[:, n])
+            x, cstate = controller.step(e, cstate)
+            u, nstate = nonlinearity.step(x, nstate)
+            X[n] = x
+            U[n] = u
+            s = ordered_products(s, Fp) + u[:, None] * Gp
+        # fast outputs of every period at once: (K, R, p) -> (R, K p)
+        y0 = (ordered_products(S, lp.Ob) + U[:, :, None] * lp.Db).transpose(1, 0, 2).copy()
     y0[:, :, 0] = Y0pn.T  # the very values the controller read (same rounding)
     return y0.reshape(R, K * p), X.T.copy(), U.T.copy()
 

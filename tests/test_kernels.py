@@ -10,6 +10,7 @@ that a missing build fails there instead of silently benchmarking the numpy path
 from __future__ import annotations
 
 import os
+import warnings
 from typing import Any, ClassVar
 
 import numpy as np
@@ -203,3 +204,23 @@ def test_backend_switch_and_bad_names() -> None:
             kernels.backend()
     finally:
         kernels._choice["backend"] = old
+
+
+def test_a_diverging_loop_overflows_quietly_on_both_paths() -> None:
+    """The stability check of :func:`simulate` is bypassed: both paths run a loop that blows
+    up, without a numpy warning (the kernel cannot warn), and return the same non-finite
+    output, which :func:`simulate` turns into an UnstableError."""
+    from hbench.simulate import LiftedPlant, _run_loop
+
+    sc = _scenario(controller={"name": "pi", "kp": 40.0, "ki": 5.0})
+    lp = LiftedPlant.from_plant(sc.discrete_plant, sc.p)
+    r = np.ones((2, 4000))
+    v = np.zeros((2, 4000 * sc.p))
+    outs = []
+    for backend in ("auto", "numpy"):
+        with kernels.use(backend), warnings.catch_warnings():
+            warnings.simplefilter("error")
+            outs.append(_run_loop(lp, sc.controller, sc.nonlinearity, r, v, sc.p))
+    assert not np.all(np.isfinite(outs[1][0]))
+    for a, b in zip(outs[0], outs[1], strict=True):
+        np.testing.assert_array_equal(a, b)
