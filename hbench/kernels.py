@@ -9,7 +9,8 @@ order 1-3): the compiled one is only faster. A run's numbers never depend on the
 with it.
 
 * ``HBENCH_KERNELS=numpy`` (environment) forces the numpy path; ``auto`` (default) uses the
-  compiled kernels when they were built. :func:`use` switches within a process (tests).
+  compiled kernels when they were built. :func:`use` switches for the calling thread or task
+  (tests).
 * Without a C compiler at install time, or with a stale build (compiled from another
   ``_kernels.c`` than the one beside this module: ``setup.py`` compiles the source's SHA-256
   into the library), hbench runs the numpy path; :func:`backend` says which one runs, and
@@ -28,6 +29,7 @@ Kernels:
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import ctypes
 import functools
 import hashlib
@@ -59,7 +61,17 @@ _STATE = ("x_prev", "u_prev", "x_ss", "direction", "stuck")
 
 _F64 = np.ctypeslib.ndpointer(dtype=np.float64, flags="C_CONTIGUOUS")
 _I64 = ctypes.c_int64
-_choice = {"backend": os.environ.get("HBENCH_KERNELS", "auto")}
+#: The backend :func:`use` asked for in this context (a context variable, so a thread's or
+#: task's ``use`` leaves the others alone); ``None``: ``HBENCH_KERNELS``.
+_override: contextvars.ContextVar[str | None] = contextvars.ContextVar(
+    "hbench_kernels", default=None
+)
+
+
+def _asked() -> str:
+    """The backend asked for: :func:`use`'s, else ``HBENCH_KERNELS`` (default ``auto``)."""
+    name = _override.get()
+    return os.environ.get("HBENCH_KERNELS", "auto") if name is None else name
 
 
 @functools.cache
@@ -100,11 +112,9 @@ def _library() -> tuple[ctypes.CDLL | None, str]:
 
 def backend() -> str:
     """``"c"`` when the compiled kernels run, else ``"numpy"``."""
-    if _choice["backend"] not in BACKENDS:
-        raise InputError(
-            f"HBENCH_KERNELS must be one of {', '.join(BACKENDS)}, got {_choice['backend']!r}"
-        )
-    if _choice["backend"] == "numpy":
+    if _asked() not in BACKENDS:
+        raise InputError(f"HBENCH_KERNELS must be one of {', '.join(BACKENDS)}, got {_asked()!r}")
+    if _asked() == "numpy":
         return "numpy"
     return "c" if _library()[0] is not None else "numpy"
 
@@ -114,21 +124,21 @@ def status() -> str:
     b = backend()
     if b == "c":
         return "compiled kernels (hbench._kernels)"
-    why = "HBENCH_KERNELS=numpy" if _choice["backend"] == "numpy" else _library()[1]
+    why = "HBENCH_KERNELS=numpy" if _asked() == "numpy" else _library()[1]
     return f"numpy path ({why})"
 
 
 @contextlib.contextmanager
 def use(name: str) -> Iterator[None]:
-    """Run the body with the backend ``name`` (``"auto"`` or ``"numpy"``)."""
+    """Run the body with the backend ``name`` (``"auto"`` or ``"numpy"``), in this thread (or
+    task) only; processes forked within the body inherit it."""
     if name not in BACKENDS:
         raise InputError(f"kernel backend must be one of {', '.join(BACKENDS)}, got {name!r}")
-    old = _choice["backend"]
-    _choice["backend"] = name
+    token = _override.set(name)
     try:
         yield
     finally:
-        _choice["backend"] = old
+        _override.reset(token)
 
 
 def _compiled() -> ctypes.CDLL | None:

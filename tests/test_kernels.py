@@ -197,13 +197,12 @@ def test_backend_switch_and_bad_names() -> None:
     with pytest.raises(InputError, match="kernel backend must be one of auto, numpy"):
         with kernels.use("fortran"):
             pass
-    old = kernels._choice["backend"]
-    try:
-        kernels._choice["backend"] = "gpu"  # as a bad HBENCH_KERNELS would set it
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("HBENCH_KERNELS", "gpu")
         with pytest.raises(InputError, match="HBENCH_KERNELS must be one of auto, numpy"):
             kernels.backend()
-    finally:
-        kernels._choice["backend"] = old
+        with kernels.use("numpy"):  # use() overrides the environment
+            assert kernels.backend() == "numpy"
 
 
 def test_a_diverging_loop_overflows_quietly_on_both_paths() -> None:
@@ -224,3 +223,26 @@ def test_a_diverging_loop_overflows_quietly_on_both_paths() -> None:
     assert not np.all(np.isfinite(outs[1][0]))
     for a, b in zip(outs[0], outs[1], strict=True):
         np.testing.assert_array_equal(a, b)
+
+
+def test_use_switches_the_backend_of_its_own_thread_only() -> None:
+    import threading
+
+    seen: dict[str, str] = {}
+    inside, release = threading.Event(), threading.Event()
+
+    def other() -> None:
+        inside.wait()
+        seen["other"] = kernels.backend()
+        release.set()
+
+    t = threading.Thread(target=other)
+    t.start()
+    outside = kernels.backend()
+    with kernels.use("numpy"):
+        inside.set()
+        release.wait(10)
+        seen["here"] = kernels.backend()
+    t.join()
+    assert seen == {"here": "numpy", "other": outside}
+    assert kernels.backend() == outside
