@@ -202,6 +202,29 @@ HB_EXPORT int hb_lfilter_rows(int64_t R, int64_t N, int64_t n, const double *num
     return 0;
 }
 
+/*
+ * Mean squares over periods (polyphase.phase_variances): out[r, l] = (1/n) sum_j a[r, j p + l]^2,
+ * j = 0 .. n-1, l = 0 .. width-1, a starting at the first period's first sample with a row stride
+ * of a_stride elements. numpy reduces the C-ordered (runs, n, width) squares along the periods
+ * term after term when width >= 2 (pairwise only along the innermost axis), so the sum here is
+ * sequential; the wrapper never calls this for width 1.
+ */
+HB_EXPORT void hb_period_mean_squares(int64_t R, int64_t n, int64_t p, int64_t width,
+                                      const double *a, int64_t a_stride, double *out)
+{
+    for (int64_t r = 0; r < R; r++) {
+        const double *ar = a + r * a_stride;
+        for (int64_t l = 0; l < width; l++) {
+            double acc = ar[l] * ar[l];
+            for (int64_t j = 1; j < n; j++) {
+                double v = ar[j * p + l];
+                acc = acc + v * v;
+            }
+            out[r * width + l] = acc / (double)n;
+        }
+    }
+}
+
 /* A module Python can import (so that setuptools builds and installs it like any extension);
  * its functions are reached through ctypes. */
 static struct PyModuleDef kernels_module = {PyModuleDef_HEAD_INIT, "_kernels",

@@ -22,6 +22,7 @@ Kernels:
   (:data:`NONLINEARITY_CODES`) and the state-space controllers of :mod:`hbench.controllers`;
   other actuators (plugins) run the numpy loop.
 * :func:`filtered_output`: ``w = A(q) y`` of :func:`hbench.polyphase.filtered_output`.
+* :func:`period_mean_squares`: ``Var{Delta w^(l)}`` of :func:`hbench.polyphase.phase_variances`.
 * :func:`lfilter_rows`: ``scipy.signal.lfilter`` with one coefficient set per run
   (:func:`hbench.polyphase.batched_lfilter`, Bai & Fu's direct inverse).
 """
@@ -105,6 +106,8 @@ def _library() -> tuple[ctypes.CDLL | None, str]:
     ]
     lib.hb_filtered_output.restype = None
     lib.hb_filtered_output.argtypes = [*(_I64,) * 3, _F64, _F64, _F64]
+    lib.hb_period_mean_squares.restype = None
+    lib.hb_period_mean_squares.argtypes = [*(_I64,) * 4, ctypes.c_void_p, _I64, _F64]
     lib.hb_lfilter_rows.restype = ctypes.c_int
     lib.hb_lfilter_rows.argtypes = [*(_I64,) * 3, _F64, _F64, ctypes.c_void_p, _I64, _F64]
     return lib, ""
@@ -230,6 +233,22 @@ def filtered_output(y: np.ndarray, a: np.ndarray) -> np.ndarray | None:
     w = np.empty((R, N))
     lib.hb_filtered_output(R, N, a.shape[1] - 1, a, y, w)
     return w
+
+
+def period_mean_squares(block: np.ndarray) -> np.ndarray | None:
+    """``np.mean(np.square(block), axis=1)`` for ``block`` of shape ``(runs, n, width)``, a
+    strided view with unit element stride (:func:`hbench.polyphase.period_block`), compiled;
+    ``None`` when numpy must run (numpy path, ``width < 2``, no periods, another layout)."""
+    lib = _compiled()
+    if lib is None or block.ndim != 3 or block.dtype != np.float64:
+        return None
+    R, n, width = block.shape
+    s0, s1, s2 = block.strides
+    if width < 2 or n < 1 or R < 1 or s2 != 8 or s1 % 8 or s0 % 8 or s1 < 8 * width:
+        return None
+    out = np.empty((R, width))
+    lib.hb_period_mean_squares(R, n, s1 // 8, width, block.ctypes.data, s0 // 8, out)
+    return out
 
 
 def lfilter_rows(num: np.ndarray, den: np.ndarray, x: np.ndarray) -> np.ndarray | None:

@@ -380,7 +380,9 @@ def period_block(a: np.ndarray, p: int, k: np.ndarray, shift: int, width: int) -
 def phase_variances(dw: np.ndarray, p: int, shift: int, t_min: int) -> np.ndarray:
     """``Var{Delta w^(l)}``, l = 1..p (the paper's Table 2): mean square over common periods."""
     k = common_periods(dw, p, shift, t_min, p)
-    return np.mean(np.square(period_block(dw, p, k, shift, p)), axis=1)
+    block = period_block(dw, p, k, shift, p)
+    compiled = kernels.period_mean_squares(block)  # the same sums, term after term
+    return compiled if compiled is not None else np.mean(np.square(block), axis=1)
 
 
 def b_lsm(

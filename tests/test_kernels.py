@@ -121,6 +121,29 @@ def test_filtered_output_is_the_numpy_path(na: int) -> None:
 
 
 @needs_build
+@pytest.mark.parametrize(("p", "shift", "t_min"), [(2, 1, 3), (5, 0, 3), (5, 4, 1), (7, 3, 12)])
+def test_phase_variances_are_the_numpy_path(p: int, shift: int, t_min: int) -> None:
+    """Sums of squares of widely ranging size, where another order of summation would show."""
+    rng = np.random.default_rng(p + shift)
+    dw = rng.standard_normal((6, 4001)) * np.exp(rng.uniform(-15, 15, (6, 4001)))
+    v = pp.phase_variances(dw[:, 1:], p, shift, t_min)  # a strided view, as selections pass it
+    with kernels.use("numpy"):
+        v0 = pp.phase_variances(dw[:, 1:], p, shift, t_min)
+    np.testing.assert_array_equal(v, v0)
+    block = pp.period_block(dw, p, np.arange(3, 50), shift, p)
+    np.testing.assert_array_equal(
+        kernels.period_mean_squares(block), np.mean(np.square(block), axis=1)
+    )
+    wide = np.ascontiguousarray(block.transpose(0, 2, 1))  # any width >= 2, contiguous too
+    np.testing.assert_array_equal(
+        kernels.period_mean_squares(wide), np.mean(np.square(wide), axis=1)
+    )
+    # numpy sums a single column pairwise, and strided columns are not the kernel's: numpy runs
+    assert kernels.period_mean_squares(block[:, :, :1]) is None
+    assert kernels.period_mean_squares(block[:, :, ::-1]) is None
+
+
+@needs_build
 @pytest.mark.parametrize(("n_num", "n_den"), [(1, 2), (3, 2), (2, 4), (5, 3)])
 def test_batched_lfilter_is_scipys(n_num: int, n_den: int) -> None:
     rng = np.random.default_rng(10 * n_num + n_den)
