@@ -40,6 +40,23 @@ per 1000 runs against 1.27-1.35 s for the previous commit, side by side (machine
 ~0.09 s), eq. (27) (~0.13 s), the IV moments and numerators (~0.12 s), the tidy rows (~0.17 s:
 pandas frame construction; building the text columns through pyarrow was tried and was no
 faster), per-run streams (~0.05 s), the fitness (~0.08 s).
+
+Session 5 (2026-11-23): tidy rows as column blocks joined once per cell, text columns as codes
+taken into pandas' string dtype (:mod:`hbench.tidy`; the same frame); the fitness scalings from
+one pass; the selection's Table 2 variances compiled and its ``nanmean(dy^2)`` shared; periods read
+through strided views instead of gathers; eq. (27)'s validity patterns keyed as integers; the IV
+moments and numerator by one batched matmul per phase (numbers move at rounding level for the IV
+methods). Interleaved best-of-5 cells against the session's starting commit: 960-1095 against
+867-910 runs/s in one process (~1.2x), 1407-1576 against 1187-1403 with ``jobs=2``; the benchmark
+gave 960-1040 (one process), 1370-1440 (``jobs=2``) and 580-680 (numpy path). Still dominating,
+~0.95 s of CPU per 1000 runs (cProfile): the two structure selections (~0.3 s: the per-shift LSM
+and OLS fits with their small pseudo-inverses ~0.1 s, the selection logic ~0.04 s, ``A(q) y`` and
+``Delta w`` ~0.04 s), simulation (~0.25 s: per-run streams 0.06 s, Gaussian draws 0.05 s,
+reference and noise shaping 0.06 s, the compiled loop 0.05 s), eq. (27) (~0.11 s, half of it
+LAPACK's ``dptsv``), the final denominators and numerators (~0.16 s), the fitness (~0.05 s), tidy
+rows (~0.03 s). No single part is large enough for 3000 runs/s (~0.5 ms of CPU per run with the
+observed 1.4-1.5x two-process scaling): it needs the selection's and the numerators' algebra fused
+into compiled kernels with numpy mirrors.
 """
 
 from __future__ import annotations
