@@ -365,11 +365,16 @@ def common_periods(dw: np.ndarray, p: int, shift: int, t_min: int, nb: int) -> n
 def period_block(a: np.ndarray, p: int, k: np.ndarray, shift: int, width: int) -> np.ndarray:
     """``a[:, k p + shift + l]`` for ``l = 1 .. width``, shape ``(runs, len(k), width)``.
 
-    A strided view when ``k`` is consecutive (as :func:`common_periods` gives), else a C-order
-    gather (:func:`take_periods`). Elementwise results computed from either are the same
-    C-order arrays, so reductions over them sum in the same order.
+    A strided view when ``k`` is consecutive (as :func:`common_periods` gives) and ``a`` is laid
+    out row by row, else a C-order gather (:func:`take_periods`). Elementwise results computed
+    from either are the same C-order arrays, so reductions over them sum in the same order.
     """
-    if k.size and int(k[-1] - k[0]) == k.size - 1:
+    row_major = (
+        a.ndim == 2
+        and a.strides[1] == a.itemsize
+        and (a.shape[0] == 1 or abs(a.strides[0]) >= a.shape[1] * a.itemsize)
+    )  # a view of another layout would lay out (and sum) elementwise results otherwise
+    if row_major and k.size and int(k[-1] - k[0]) == k.size - 1:
         start = int(k[0]) * p + shift + 1
         stop = int(k[-1]) * p + shift + width + 1
         return sliding_window_view(a[:, start:stop], width, axis=1)[:, ::p]
@@ -534,6 +539,9 @@ def _validity_patterns(valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     M, p = valid.shape
     if M == 0:
         return np.zeros((p, 0)), np.zeros(0, np.intp)
+    if p > 62:  # the integer keys would overflow
+        patterns, which = np.unique(valid, axis=0, return_inverse=True)
+        return patterns.astype(float).T, which.ravel()
     bits = np.arange(p - 1, -1, -1, dtype=np.int64)  # the first column most significant
     key = valid.astype(np.int64) @ (np.int64(1) << bits)
     codes, which = np.unique(key, return_inverse=True)

@@ -6,7 +6,10 @@ handful of distinct values over tens of thousands of rows, so a block keeps them
 codes into their labels; :func:`assemble` joins the blocks and turns each text column into the
 dtype pandas gives its labels (``str`` on pandas 3) by one ``take``. Converting the repeated
 Python strings row by row cost ~5x more and was a tenth of a cell's time (issue 7). The frame is
-the one ``pd.DataFrame`` would build from the same object arrays (tested).
+the one ``pd.DataFrame`` would build from the same object arrays (tested), except that a text
+column's dtype is inferred from all its values at once: a block whose errors are all ``None``
+beside blocks with messages gives the messages' dtype, where concatenating per-block frames gave
+``object``.
 """
 
 from __future__ import annotations
@@ -33,13 +36,19 @@ class Text:
 
     @classmethod
     def constant(cls, value: Any, n: int) -> Text:
-        return cls(np.zeros(n, np.intp), (value,))
+        # the object ``np.full(n, value, dtype=object)`` holds (a numpy scalar becomes Python's)
+        return cls(np.zeros(n, np.intp), (np.full(1, value, dtype=object)[0],))
 
     @classmethod
     def of(cls, values: Sequence[Any] | np.ndarray) -> Text:
-        """The column ``values`` (any hashable objects, ``None`` and nan kept as labels)."""
-        codes, labels = pd.factorize(np.asarray(values, dtype=object), use_na_sentinel=False)
-        return cls(np.asarray(codes, np.intp), tuple(labels))
+        """The column ``values``: the objects ``np.asarray(values, dtype=object)`` holds, kept as
+        they are (``None`` stays ``None``; ``1``, ``1.0`` and ``True`` stay apart)."""
+        vals = np.asarray(values, dtype=object).ravel()
+        index: dict[tuple[type, Any], int] = {}
+        codes = np.fromiter(
+            (index.setdefault((type(v), v), len(index)) for v in vals), np.intp, vals.size
+        )
+        return cls(codes, tuple(v for _, v in index))
 
     def repeat(self, k: int) -> Text:
         return Text(np.repeat(self.codes, k), self.labels)
@@ -86,13 +95,13 @@ def block(
 
 
 def _join_text(parts: list[Text]) -> Any:
-    index: dict[Any, int] = {}
+    index: dict[tuple[type, Any], int] = {}
     codes = []
     for part in parts:
-        remap = np.array([index.setdefault(v, len(index)) for v in part.labels], np.intp)
+        remap = np.array([index.setdefault((type(v), v), len(index)) for v in part.labels], np.intp)
         codes.append(remap[part.codes])
     labels = np.empty(len(index), dtype=object)
-    labels[:] = list(index)
+    labels[:] = [v for _, v in index]
     # the dtype pandas infers for these labels (``str`` on pandas 3, object before), then one take
     return pd.Series(labels).array.take(np.concatenate(codes))
 

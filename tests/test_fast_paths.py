@@ -361,3 +361,46 @@ def test_validity_patterns_equal_numpys_unique_rows_in_order_and_layout():
         np.testing.assert_array_equal(V, ref)
         np.testing.assert_array_equal(which, wh.ravel())
         assert V.strides == ref.strides  # einsum sums in an order that follows the layout
+
+
+def test_period_block_of_a_column_major_record_sums_as_one_run_does():
+    """A column-major ``dw`` is gathered (a view of it would lay out, and sum, otherwise)."""
+    rng = np.random.default_rng(9)
+    dw = np.asfortranarray(rng.standard_normal((3, 2001)) * np.exp(rng.uniform(-12, 12, (3, 2001))))
+    many = pp.b_lsm(dw, 5, 1, 3, np.zeros(3), 3)
+    for i in range(3):
+        np.testing.assert_array_equal(
+            many[i : i + 1], pp.b_lsm(dw[i : i + 1], 5, 1, 3, np.zeros(1), 3)
+        )
+    np.testing.assert_array_equal(
+        pp.phase_variances(dw, 5, 2, 4), pp.phase_variances(np.ascontiguousarray(dw), 5, 2, 4)
+    )
+
+
+@pytest.mark.parametrize("p", [62, 63, 64, 70])
+def test_validity_patterns_of_many_phases(p):
+    rng = np.random.default_rng(p)
+    valid = rng.random((30, p)) < 0.5
+    V, which = pp._validity_patterns(valid)
+    np.testing.assert_array_equal(V[:, which].T.astype(bool), valid)
+    pat = np.unique(valid, axis=0)
+    np.testing.assert_array_equal(V, pat.astype(float).T)
+
+
+def test_tidy_text_keeps_the_objects_it_was_given():
+    from hbench import tidy
+
+    t = tidy.Text.of([None, "", 1, 1.0, True, None, "x"])
+    assert [t.labels[c] for c in t.codes] == [None, "", 1, 1.0, True, None, "x"]
+    assert [type(t.labels[c]) for c in t.codes[2:5]] == [int, float, bool]
+    # a numpy scalar identifier is stored as np.full(..., dtype=object) stores it
+    assert type(tidy.Text.constant(np.int64(4), 3).labels[0]) is int
+    col = tidy._join_text([tidy.Text.of(["a", None]), tidy.Text.of([None, 0, False])])
+    # mixed labels: pandas keeps objects; 0 and False are not merged, None is not made nan
+    assert [(type(v), v) for v in col] == [
+        (str, "a"),
+        (type(None), None),
+        (type(None), None),
+        (int, 0),
+        (bool, False),
+    ]
