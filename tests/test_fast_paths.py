@@ -81,6 +81,29 @@ def test_iv_moments_equal_the_explicit_instruments(noisy):
     np.testing.assert_allclose(pp.iv_moments(reg, record.r, 6, 1), G, rtol=1e-12, atol=1e-15)
 
 
+@pytest.mark.parametrize(
+    ("na", "phases", "shift", "m", "lag0"),
+    [(2, (5,), 0, 6, 1), (1, (3, 4, 5), 3, 4, 2), (4, (2, 3, 4, 5), 1, 9, 1), (0, (5,), 4, 3, 3)],
+)
+def test_iv_moments_are_exact_on_integer_data(na, phases, shift, m, lag0):
+    """Integer data: every product and partial sum is exact, so any order of summation gives
+    the same bits, and the moments must equal the explicit rows' exactly (no tolerance)."""
+    rng = np.random.default_rng(na + m)
+    y = np.cumsum(rng.integers(-50, 50, (3, 1001)), axis=1).astype(float)
+    r = rng.integers(-9, 9, (3, 200)).astype(float)
+    dy = pp.delta(y)
+    reg = pp.quiet_regression(dy, 5, na, phases, shift, moments=pp.LagMoments(dy, 5, 5))
+    Z, ok = pp.instruments(r, reg.k, m, lag0)
+    yy, phi = _rows(dy, reg)
+    Z, yy, phi = Z[:, ok], yy[:, ok], phi[:, ok]
+    G = np.concatenate(
+        [(Z * yy[..., None]).sum(axis=1)[..., None], np.einsum("rnm,rni->rmi", Z, phi)], axis=2
+    )
+    np.testing.assert_array_equal(pp.iv_moments(reg, r, m, lag0), G / ok.sum())
+    one = pp.quiet_regression(dy[1:2], 5, na, phases, shift, moments=pp.LagMoments(dy[1:2], 5, 5))
+    np.testing.assert_array_equal(pp.iv_moments(one, r[1:2], m, lag0), G[1:2] / ok.sum())
+
+
 def _spd_tridiagonal(seed: int, R: int, M: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(off, diag, rhs)`` of R diagonally dominant (so positive definite) systems of size M."""
     rng = np.random.default_rng(seed)
