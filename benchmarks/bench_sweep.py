@@ -1,10 +1,12 @@
 """``hbench sweep``: the same 16-job sweep under the basic and the joblib launcher (n_jobs=2).
 
 Run with ``.venv/bin/pytest benchmarks --benchmark-only -k bench_sweep``. The joblib case records
-``speedup`` = basic time / joblib time in ``extra_info``. Each job is heavy enough (the paper's
-500 s record, 4 methods, 600 runs: about 4 s of work) that the per-job Hydra overhead (~0.4 s,
-paid by both launchers) and the start-up of the worker processes (~3 s, joblib only) do not
-dominate. The whole ``hbench sweep`` command is timed in a fresh process, as a user runs it.
+``speedup`` = basic time / joblib time (the fastest of :data:`ROUNDS` rounds each) in
+``extra_info``. Each job is heavy enough (the paper's 500 s record, 4 methods, 1000 runs: about
+3 s of work; 600 runs took 4 s before session 5's speed-ups and 2 s after) that the per-job
+Hydra overhead (~0.4 s, paid by both launchers) and the start-up of the worker processes (~3 s,
+joblib only) do not dominate. The whole ``hbench sweep`` command is timed in a fresh process,
+as a user runs it.
 
 Both runs use one BLAS thread per process (``OPENBLAS_NUM_THREADS=1``), which is what joblib's
 loky workers get on their own (it caps them at cores / n_jobs): the ratio then measures the
@@ -34,13 +36,16 @@ SWEEP = (
     "plant.delay=2,7",
     "nonlinearity=backlash,stiction",
     "methods=[wang-lsm,wang-iv,bai-fu,sun-liu-sano]",
-    "runs=600",
+    "runs=1000",
 )
 LAUNCHERS = {
     "basic": (),
     "joblib": ("hydra/launcher=joblib", "hydra.launcher.n_jobs=2"),
 }
 _seconds: dict[str, float] = {}
+#: Rounds per launcher; the speed-up compares the fastest of each (this shared machine's speed
+#: varies by ~20 % from minute to minute, which a single round each turned into 1.15-1.56x).
+ROUNDS = 2
 _counter = itertools.count()
 
 
@@ -76,11 +81,11 @@ def _sweep(out: Path, launcher: str) -> int:
     assert proc.returncode == 0, proc.stderr[-2000:]
     own = _children_seconds() - own0
     # cores' worth of CPU used by other processes meanwhile: a busy machine hides the speed-up
-    _runs[launcher] = {
-        "wall": wall,
-        "cpu": own,
-        "foreign_cores": max(0.0, (_busy_seconds() - busy0 - own) / wall),
-    }
+    foreign = max(0.0, (_busy_seconds() - busy0 - own) / wall)
+    prev = _runs.get(launcher)
+    if prev is None or wall < prev["wall"]:  # the fastest round, and the busiest machine seen
+        _runs[launcher] = {"wall": wall, "cpu": own, "foreign_cores": foreign}
+    _runs[launcher]["foreign_cores"] = max(foreign, _runs[launcher]["foreign_cores"])
     return proc.returncode
 
 
@@ -102,11 +107,11 @@ def test_sweep_16_jobs(benchmark: BenchmarkFixture, tmp_path: Path, launcher: st
     def setup() -> tuple[tuple[Path, str], dict[str, object]]:
         return (tmp_path / f"round{next(_counter)}", launcher), {}  # a fresh folder: no resume
 
-    status = benchmark.pedantic(_sweep, setup=setup, rounds=1, iterations=1)
+    status = benchmark.pedantic(_sweep, setup=setup, rounds=ROUNDS, iterations=1)
     assert status == 0
     out = max(tmp_path.iterdir(), key=lambda p: p.stat().st_mtime)
     assert len(pd.read_csv(out / "fitness.csv")) == 16 * 4
-    seconds = benchmark.stats.stats.mean
+    seconds = benchmark.stats.stats.min
     _seconds[launcher] = seconds
     benchmark.extra_info.update(
         launcher=launcher, jobs=16, cores=os.cpu_count(), blas_threads=1, **_runs[launcher]
