@@ -419,34 +419,40 @@ def largest_order(options: IdentifyOptions) -> int:
     return int(options.na) if options.na is not None else int(options.na_range[1])
 
 
+def _kept(cache: dict[Any, Any] | None, key: Any, make: Callable[[], Any]) -> Any:
+    """``make()``, kept in ``cache`` (a record's) under ``key`` and taken from there next time;
+    computed afresh when there is no cache (or no key)."""
+    if cache is None or key is None:
+        return make()
+    if key not in cache:
+        cache[key] = make()
+    return cache[key]
+
+
 def shared_moments(
     y: np.ndarray, p: int, L: int, cache: dict[str, Any] | None = None
 ) -> tuple[np.ndarray, pp.LagMoments]:
     """``(Delta y, its quiet-phase moments up to lag L)``, kept in ``cache`` (a record's) so that
     every method run on one record computes them once."""
-    key = f"quiet-moments/p={p}/L={L}"
-    if cache is not None and key in cache:
-        return cache[key]
-    dy = pp.delta(y)
-    out = (dy, pp.LagMoments(dy, p, L))
-    if cache is not None:
-        cache[key] = out
-    return out
+
+    def make() -> tuple[np.ndarray, pp.LagMoments]:
+        dy = pp.delta(y)
+        return dy, pp.LagMoments(dy, p, L)
+
+    return _kept(cache, f"quiet-moments/p={p}/L={L}", make)
 
 
 def _mean_square(dy: np.ndarray, cache: dict[str, Any] | None = None) -> np.ndarray:
     """``nanmean(dy**2, axis=1)`` (the same sums: nan squares zeroed, then ``np.sum``), kept in
     ``cache`` so that the selections of several methods on one record compute it once."""
-    key = "mean-square-delta-y"
-    if cache is not None and key in cache:
-        return cache[key]
-    sq = np.square(dy)
-    bad = np.isnan(sq)
-    sq[bad] = 0.0
-    out = np.sum(sq, axis=1) / np.sum(~bad, axis=1, dtype=np.intp)
-    if cache is not None:
-        cache[key] = out
-    return out
+
+    def make() -> np.ndarray:
+        sq = np.square(dy)
+        bad = np.isnan(sq)
+        sq[bad] = 0.0
+        return np.sum(sq, axis=1) / np.sum(~bad, axis=1, dtype=np.intp)
+
+    return _kept(cache, "mean-square-delta-y", make)
 
 
 def select_structure(
@@ -496,12 +502,13 @@ def select_structure(
     na_max = int(na_values.max())
     # kept in the record's cache: another method's selection on the same record (the LSM's
     # and the OLS's tables) reuses the regressions and what they computed (Rm^+)
-    key = f"selection-regressions/p={p}/na={na_max}/L={lm.L}"
-    full = cache.get(key) if cache is not None else None
-    if full is None:
-        full = [pp.quiet_regression(dy, p, na_max, (p,), s, moments=lm, fast=True) for s in shifts]
-        if cache is not None:
-            cache[key] = full
+    full = _kept(
+        cache,
+        f"selection-regressions/p={p}/na={na_max}/L={lm.L}",
+        lambda: [
+            pp.quiet_regression(dy, p, na_max, (p,), s, moments=lm, fast=True) for s in shifts
+        ],
+    )
     C = np.empty((R, n_na, p, p))
     for i, na in enumerate(na_values):
         regs = [reg.truncate(int(na)) for reg in full]
@@ -659,11 +666,9 @@ def blind_fit(
         if _reads_the_regression_only(fit)
         else None
     )
-    st = record.cache.get(key) if key is not None else None
-    if st is None:
-        st = select_structure(y, p, options, fit, rule, pooled, record.cache)
-        if key is not None:
-            record.cache[key] = st
+    st = _kept(
+        record.cache, key, lambda: select_structure(y, p, options, fit, rule, pooled, record.cache)
+    )
     dy_all, lm = shared_moments(y, p, largest_order(options), record.cache)
     na_max, nb_max = int(st.na.max()), int(st.nb.max())
     a = np.zeros((R, na_max))
