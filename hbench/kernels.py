@@ -115,9 +115,10 @@ def _library() -> tuple[ctypes.CDLL | None, str]:
 
 def backend() -> str:
     """``"c"`` when the compiled kernels run, else ``"numpy"``."""
-    if _asked() not in BACKENDS:
-        raise InputError(f"HBENCH_KERNELS must be one of {', '.join(BACKENDS)}, got {_asked()!r}")
-    if _asked() == "numpy":
+    asked = _asked()
+    if asked not in BACKENDS:
+        raise InputError(f"HBENCH_KERNELS must be one of {', '.join(BACKENDS)}, got {asked!r}")
+    if asked == "numpy":
         return "numpy"
     return "c" if _library()[0] is not None else "numpy"
 

@@ -305,12 +305,18 @@ def iv_moments(reg: QuietRegression, r: np.ndarray, m: int, lag0: int = 1) -> np
         t0 = kk[0] * p + c
         Z = win[:, j0 : j0 + kk.size]  # (R, n_c, m)
         Y = lags[:, t0 - na : t0 - na + (kk.size - 1) * p + 1 : p]  # (R, n_c, na + 1)
-        # a batched product of contiguous copies: the same BLAS call per run whatever the
-        # batch, so a run's numbers do not depend on the runs batched with it
-        out += np.matmul(np.ascontiguousarray(Z.transpose(0, 2, 1)), np.ascontiguousarray(Y))
+        out += _instrument_products(Z, Y)
         n += kk.size
     out[:, :, 1:] *= -1.0
     return out / max(n, 1)
+
+
+def _instrument_products(Z: np.ndarray, Y: np.ndarray) -> np.ndarray:
+    """``sum_j Z[:, j]^T Y[:, j]`` per run: ``(R, m, q)`` from ``(R, n, m)`` and ``(R, n, q)``.
+
+    One batched product of contiguous copies: the same BLAS call for every run whatever the
+    batch, so a run's numbers do not depend on the runs batched with it."""
+    return np.matmul(np.ascontiguousarray(Z.transpose(0, 2, 1)), np.ascontiguousarray(Y))
 
 
 def iv(reg: QuietRegression, r: np.ndarray, m: int, lag0: int = 1) -> np.ndarray:
@@ -423,10 +429,8 @@ def b_iv(
     k = common_periods(dw, p, shift, t_min, nb)
     Z, ok = instruments(r, k, m, lag0)
     k, Z = k[ok], Z[:, ok]
-    D = np.ascontiguousarray(period_block(dw, p, k, shift, nb))  # (R, n, nb)
-    # every (1/K) sum zeta dwl at once, (R, m, nb), by one batched product (the same BLAS call
-    # per run whatever the batch)
-    C = np.matmul(np.ascontiguousarray(Z.transpose(0, 2, 1)), D) / len(k)
+    # every (1/K) sum zeta dwl at once, (R, m, nb)
+    C = _instrument_products(Z, period_block(dw, p, k, shift, nb)) / len(k)
     g = C[:, :, 0]
     b = np.ones((dw.shape[0], nb))
     gg = np.einsum("rm,rm->r", g, g)
