@@ -44,11 +44,7 @@ class Text:
         """The column ``values``: the objects ``np.asarray(values, dtype=object)`` holds, kept as
         they are (``None`` stays ``None``; ``1``, ``1.0`` and ``True`` stay apart)."""
         vals = np.asarray(values, dtype=object).ravel()
-        index: dict[tuple[type, Any], int] = {}
-        codes = np.fromiter(
-            (index.setdefault((type(v), v), len(index)) for v in vals), np.intp, vals.size
-        )
-        return cls(codes, tuple(v for _, v in index))
+        return cls(*_factorize(vals))
 
     def repeat(self, k: int) -> Text:
         return Text(np.repeat(self.codes, k), self.labels)
@@ -94,14 +90,25 @@ def block(
     return cols
 
 
-def _join_text(parts: list[Text]) -> Any:
+def _factorize(values: Sequence[Any]) -> tuple[np.ndarray, tuple[Any, ...]]:
+    """``(codes, labels)`` with ``values[i]`` the object ``labels[codes[i]]``, labels in order of
+    first appearance; objects are told apart by type and value (``1``, ``1.0``, ``True`` apart)."""
     index: dict[tuple[type, Any], int] = {}
-    codes = []
+    codes = np.fromiter(
+        (index.setdefault((type(v), v), len(index)) for v in values), np.intp, len(values)
+    )
+    return codes, tuple(v for _, v in index)
+
+
+def _join_text(parts: list[Text]) -> Any:
+    # every block's labels coded against the union of all, then each block's codes remapped
+    remap, union = _factorize([v for part in parts for v in part.labels])
+    codes, at = [], 0
     for part in parts:
-        remap = np.array([index.setdefault((type(v), v), len(index)) for v in part.labels], np.intp)
-        codes.append(remap[part.codes])
-    labels = np.empty(len(index), dtype=object)
-    labels[:] = [v for _, v in index]
+        codes.append(remap[at : at + len(part.labels)][part.codes])
+        at += len(part.labels)
+    labels = np.empty(len(union), dtype=object)
+    labels[:] = union
     # the dtype pandas infers for these labels (``str`` on pandas 3, object before), then one take
     return pd.Series(labels).array.take(np.concatenate(codes))
 
