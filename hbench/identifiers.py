@@ -541,9 +541,9 @@ def select_structure(
     for key in set(zip(na.tolist(), tau.tolist(), strict=True)):
         idx = np.flatnonzero((na == key[0]) & (tau == key[1]))
         phases = tuple(range(options.nb_max + 1, p + 1)) if pooled else (p,)
-        reg = pp.quiet_regression(dy[idx], p, key[0], phases, key[1], moments=lm.take(idx))
+        reg = pp.quiet_regression(_runs(dy, idx), p, key[0], phases, key[1], moments=lm.take(idx))
         a = np.concatenate([np.ones((idx.size, 1)), fit(reg, idx)[0]], axis=1)
-        dw = pp.delta(pp.filtered_output(y[idx], a))
+        dw = pp.delta(pp.filtered_output(_runs(y, idx), a))
         var_dw[idx] = pp.phase_variances(dw, p, key[1], t_min=key[0] + 1)
     nb = (
         _select_nb(var_dw, options.nb_max, rule, scale)
@@ -551,6 +551,17 @@ def select_structure(
         else np.full(R, int(options.nb))
     )
     return Structure(na=na, tau=tau, nb=nb, V=V, C=C, var_dw=var_dw, na_values=na_values)
+
+
+def _runs(a: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """``a[idx]`` for sorted distinct run indices ``idx`` (as :func:`groups` gives); when they are
+    every run of a C-ordered ``a``, a read-only view of it instead of a copy (the same values in
+    the same layout, hence the same numbers, without copying the batch)."""
+    if idx.size == a.shape[0] and a.flags.c_contiguous:
+        view = a.view()
+        view.flags.writeable = False
+        return view
+    return a[idx]
 
 
 def groups(*keys: np.ndarray) -> list[tuple[tuple[int, ...], np.ndarray]]:
@@ -607,7 +618,9 @@ def identify(
 
 #: ``numerator(dw, tau, nb, sigma2, idx) -> b`` of shape ``(len(idx), nb)`` with ``b1 = 1``.
 NumeratorFit = Callable[[np.ndarray, int, int, np.ndarray, np.ndarray], np.ndarray]
-#: ``inner(y, w, a, b, tau, idx) -> (U~, n_first, label)``: the inner signal on the shifted grid.
+#: ``inner(y, w, a, b, p, tau, t_min) -> (U~, n_first, label)``: the inner signal on the shifted
+#: grid, from the group's outputs ``y``, ``w = A(q) y``, ``A`` and ``B``. Its arrays are inputs
+#: only (``y`` may be a read-only view of the record's).
 InnerSignal = Callable[..., tuple[np.ndarray, int, str]]
 
 
@@ -680,12 +693,13 @@ def blind_fit(
     inverse: dict[str, int] = {}
     for (na, tau, nb), idx in groups(st.na, st.tau, st.nb):
         phases = tuple(range(nb + 1, p + 1)) if pooled else (p,)
-        reg = pp.quiet_regression(dy_all[idx], p, na, phases, tau, moments=lm.take(idx))
+        y_idx = _runs(y, idx)
+        reg = pp.quiet_regression(_runs(dy_all, idx), p, na, phases, tau, moments=lm.take(idx))
         theta, s2 = refine(reg, idx, tau, nb) if refine is not None else denominator(reg, idx)
         a[idx, :na] = theta
         sigma2[idx] = s2
         den = np.concatenate([np.ones((idx.size, 1)), theta], axis=1)
-        w = pp.filtered_output(y[idx], den)
+        w = pp.filtered_output(y_idx, den)
         dw = pp.delta(w)
         bb = numerator(dw, tau, nb, s2, idx)
         b[idx, :nb] = bb
@@ -698,8 +712,10 @@ def blind_fit(
             )
         good = idx[~bad]
         if good.size:
-            sel = ~bad
-            Ut, n_first, label = inner(y[good], w[sel], den[sel], bb[sel], p, tau, na)
+            if bad.any():
+                sel = ~bad
+                y_idx, w, den, bb = _runs(y, good), w[sel], den[sel], bb[sel]
+            Ut, n_first, label = inner(y_idx, w, den, bb, p, tau, na)
             U[good] = pp.align(Ut, n_first, options.delay_multiple, K)
             inverse[label] = inverse.get(label, 0) + good.size
             for j in good[np.all(np.isnan(U[good]), axis=1)]:

@@ -178,6 +178,18 @@ class QuietRegression:
             self._cache["Rinv"] = Rinv
         return self._cache["Rinv"]
 
+    def least_squares(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(theta, residual mean square)`` of the ordinary LS of (13), ``theta = Rm^+ f``,
+        computed once per regression (the OLS and the bias-compensated LSM both start from it,
+        so their selection tables on one record share it). Read-only arrays."""
+        if "ls" not in self._cache:
+            theta = np.einsum("rik,rk->ri", self.inverse(), self.moments()[1])
+            ms = self.residual_ms(theta)
+            theta.flags.writeable = False
+            ms.flags.writeable = False
+            self._cache["ls"] = (theta, ms)
+        return self._cache["ls"]
+
     def residual_ms(self, theta: np.ndarray) -> np.ndarray:
         """``(1/n) sum (Delta y - phi^T theta)^2`` per run.
 
@@ -237,10 +249,8 @@ def _pinv_sym(Rm: np.ndarray) -> np.ndarray:
 
 def ols(reg: QuietRegression) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Ordinary LS of (13): ``(theta, residual mean square, g11)``; biased under noise."""
-    f = reg.moments()[1]
-    Rinv = reg.inverse()
-    theta = np.einsum("rik,rk->ri", Rinv, f)
-    return theta, reg.residual_ms(theta), Rinv[:, 0, 0].copy()
+    theta, ms = reg.least_squares()
+    return theta.copy(), ms.copy(), reg.inverse()[:, 0, 0].copy()
 
 
 def noise_variance(s2: np.ndarray, g11: np.ndarray) -> np.ndarray:
@@ -262,10 +272,9 @@ def bias_compensated(reg: QuietRegression) -> tuple[np.ndarray, np.ndarray]:
     ``E{phi(k) Delta e(kp+l)} = [+sigma^2, 0, ..., 0]`` because ``phi_1 = -Delta y(t-1)`` holds
     ``-e(t-1)`` and ``Delta e(t) = e(t) - e(t-1)``; the compensation therefore subtracts it.
     """
-    f = reg.moments()[1]
     Rinv = reg.inverse()
-    theta_ols = np.einsum("rik,rk->ri", Rinv, f)
-    sigma2 = noise_variance(reg.residual_ms(theta_ols), Rinv[:, 0, 0])
+    theta_ols, ms = reg.least_squares()
+    sigma2 = noise_variance(ms, Rinv[:, 0, 0])
     theta = theta_ols - Rinv[:, :, 0] * sigma2[:, None]
     return theta, sigma2
 

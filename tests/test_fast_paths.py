@@ -427,3 +427,51 @@ def test_tidy_text_keeps_the_objects_it_was_given():
         (int, 0),
         (bool, False),
     ]
+
+
+def test_ols_and_lsm_share_one_least_squares_solution(noisy):
+    """Both start from ``Rm^+ f`` and its residual, computed once per regression: the numbers are
+    those of a regression that computed it afresh, and callers get arrays they may write to."""
+    record, _ = noisy
+    dy = pp.delta(record.y)
+
+    def reg():
+        return pp.quiet_regression(dy, 5, 2, (5,), 1, moments=pp.LagMoments(dy, 5, 2), fast=True)
+
+    shared = reg()
+    theta, ms, g11 = pp.ols(shared)
+    lsm = pp.bias_compensated(shared)  # reuses what ols computed
+    for got, fresh in zip(lsm, pp.bias_compensated(reg()), strict=True):
+        np.testing.assert_array_equal(got, fresh)
+    f = shared.moments()[1]
+    np.testing.assert_array_equal(theta, np.einsum("rik,rk->ri", shared.inverse(), f))
+    np.testing.assert_array_equal(ms, shared.residual_ms(theta))
+    theta[:] = 0.0  # the caller's copy
+    np.testing.assert_array_equal(pp.ols(shared)[0], pp.ols(reg())[0])
+    assert g11.flags.writeable and ms.flags.writeable
+
+
+def test_a_group_of_every_run_reads_the_record_without_copying_it(monkeypatch):
+    """``_runs`` gives a read-only view when the group is the whole batch (same values, same
+    layout), a copy otherwise; the estimates are those computed from copies."""
+    from hbench import identifiers
+
+    a = np.arange(12.0).reshape(4, 3)
+    every = identifiers._runs(a, np.arange(4))
+    assert np.shares_memory(every, a) and not every.flags.writeable
+    with pytest.raises(ValueError, match="read-only"):
+        every[0, 0] = 1.0
+    some = identifiers._runs(a, np.array([1, 3]))
+    assert not np.shares_memory(some, a)
+    np.testing.assert_array_equal(some, a[[1, 3]])
+    fortran = np.asfortranarray(a)
+    assert not np.shares_memory(identifiers._runs(fortran, np.arange(4)), fortran)  # copied
+    record, _ = sim(runs=6, seed=31, noise__sigma2=1e-3)
+    names = ("wang-lsm", "wang-iv", "bai-fu")
+    got = [identify(registry().get("identifiers", n)(), record, IdentifyOptions()) for n in names]
+    monkeypatch.setattr(identifiers, "_runs", lambda a, idx: a[idx])  # always a copy
+    record.cache.clear()
+    for name, est in zip(names, got, strict=True):
+        want = identify(registry().get("identifiers", name)(), record, IdentifyOptions())
+        for field in ("U", "a", "b", "sigma2", "na", "nb", "tau"):
+            np.testing.assert_array_equal(getattr(est, field), getattr(want, field))
