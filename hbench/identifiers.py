@@ -512,6 +512,7 @@ def select_structure(
     C = np.empty((R, n_na, p, p))
     for i, na in enumerate(na_values):
         regs = [reg.truncate(int(na)) for reg in full]
+        pp.QuietRegression.invert_together(regs)
         # eq. (19) for the estimate of every shift s on the rows of every shift s2, from the
         # moments: the residual mean square is v' M v with v = [1, -theta]
         v = np.ones((R, p, int(na) + 1))

@@ -13,6 +13,7 @@ structure (na, nb, tau); callers group runs by structure.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -173,10 +174,26 @@ class QuietRegression:
         """``Rm^+``, the pseudo-inverse of ``(1/n) sum phi phi^T``, computed once per regression
         (the LSM's and the OLS's selection tables share it on one record)."""
         if "Rinv" not in self._cache:
-            Rinv = _pinv_sym(self.moments()[0])
+            group = [
+                reg for reg in self._cache.pop("inverted-with", [self]) if "Rinv" not in reg._cache
+            ]
+            Rinv = _pinv_sym(np.stack([reg.moments()[0] for reg in group]))
             Rinv.flags.writeable = False  # shared by the methods run on one record
-            self._cache["Rinv"] = Rinv
+            for reg, inv in zip(group, Rinv, strict=True):
+                reg._cache.pop("inverted-with", None)
+                reg._cache["Rinv"] = inv
         return self._cache["Rinv"]
+
+    @staticmethod
+    def invert_together(regs: Sequence[QuietRegression]) -> None:
+        """Let regressions of one order (the shifts of a selection table) compute their
+        :meth:`inverse` together: the first asked inverts every one of them in one batched call.
+        LAPACK inverts the matrices one by one whatever the batch, so the numbers are the same;
+        the call's overhead is paid once."""
+        group = [reg for reg in regs if "Rinv" not in reg._cache]
+        if len(group) > 1 and len({reg.na for reg in group}) == 1:
+            for reg in group:
+                reg._cache["inverted-with"] = group
 
     def least_squares(self) -> tuple[np.ndarray, np.ndarray]:
         """``(theta, residual mean square)`` of the ordinary LS of (13), ``theta = Rm^+ f``,

@@ -475,3 +475,27 @@ def test_a_group_of_every_run_reads_the_record_without_copying_it(monkeypatch):
         want = identify(registry().get("identifiers", name)(), record, IdentifyOptions())
         for field in ("U", "a", "b", "sigma2", "na", "nb", "tau"):
             np.testing.assert_array_equal(getattr(est, field), getattr(want, field))
+
+
+def test_regressions_inverted_together_equal_one_by_one(noisy):
+    """The shifts of a selection table invert their ``Rm`` in one batched call: the numbers of
+    one call per regression (LAPACK inverts matrix by matrix)."""
+    record, _ = noisy
+    dy = pp.delta(record.y)
+    lm = pp.LagMoments(dy, 5, 3)
+
+    def regs(na):
+        return [pp.quiet_regression(dy, 5, na, (5,), s, moments=lm, fast=True) for s in range(5)]
+
+    together, alone = regs(3), regs(3)
+    pp.QuietRegression.invert_together(together)
+    first = together[2].inverse()  # the first asked inverts all five
+    assert all("Rinv" in reg._cache for reg in together)
+    for a, b in zip(together, alone, strict=True):
+        np.testing.assert_array_equal(a.inverse(), b.inverse())
+        assert not a.inverse().flags.writeable
+    assert first is together[2].inverse()
+    mixed = [*regs(2)[:2], *regs(3)[:2]]  # different orders are left to invert alone
+    pp.QuietRegression.invert_together(mixed)
+    mixed[0].inverse()
+    assert "Rinv" not in mixed[1]._cache
