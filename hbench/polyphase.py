@@ -317,7 +317,6 @@ def iv_moments(reg: QuietRegression, r: np.ndarray, m: int, lag0: int = 1) -> np
     out = np.zeros((r.shape[0], m, na + 1))
     if K < m:  # no row has all its instruments
         return out
-    win = sliding_window_view(r, m, axis=1)[..., ::-1]  # win[:, j] = r(j + m - 1) .. r(j)
     lags = sliding_window_view(reg.dy, na + 1, axis=1)[..., ::-1]  # lags[:, t - na, i] = dy(t - i)
     periods = np.arange(reg.lm.k0, reg.lm.k1 + 1)
     n = 0
@@ -329,20 +328,29 @@ def iv_moments(reg: QuietRegression, r: np.ndarray, m: int, lag0: int = 1) -> np
         kk = periods[ok]
         j0 = kk[0] - carry - lag0 - m + 1
         t0 = kk[0] * p + c
-        Z = win[:, j0 : j0 + kk.size]  # (R, n_c, m)
+        ZT = _lagged_rows(r, j0 + m - 1, m, kk.size)  # zeta(k)^T of the rows, (R, m, n_c)
         Y = lags[:, t0 - na : t0 - na + (kk.size - 1) * p + 1 : p]  # (R, n_c, na + 1)
-        out += _instrument_products(Z, Y)
+        out += _instrument_products(ZT, Y)
         n += kk.size
     out[:, :, 1:] *= -1.0
     return out / max(n, 1)
 
 
-def _instrument_products(Z: np.ndarray, Y: np.ndarray) -> np.ndarray:
-    """``sum_j Z[:, j]^T Y[:, j]`` per run: ``(R, m, q)`` from ``(R, n, m)`` and ``(R, n, q)``.
+def _lagged_rows(r: np.ndarray, start: int, m: int, n: int) -> np.ndarray:
+    """``out[:, i, j] = r[:, start - i + j]``, ``(R, m, n)`` in C order: the instruments of ``n``
+    consecutive rows, transposed, copied lag by lag (slices, no gather)."""
+    out = np.empty((r.shape[0], m, n))
+    for i in range(m):
+        out[:, i, :] = r[:, start - i : start - i + n]
+    return out
 
-    One batched product of contiguous copies: the same BLAS call for every run whatever the
+
+def _instrument_products(ZT: np.ndarray, Y: np.ndarray) -> np.ndarray:
+    """``sum_j ZT[:, :, j] Y[:, j]^T`` per run: ``(R, m, q)`` from ``(R, m, n)`` and ``(R, n, q)``.
+
+    One batched product of C-ordered operands: the same BLAS call for every run whatever the
     batch, so a run's numbers do not depend on the runs batched with it."""
-    return np.matmul(np.ascontiguousarray(Z.transpose(0, 2, 1)), np.ascontiguousarray(Y))
+    return np.matmul(np.ascontiguousarray(ZT), np.ascontiguousarray(Y))
 
 
 def iv(reg: QuietRegression, r: np.ndarray, m: int, lag0: int = 1) -> np.ndarray:
@@ -453,10 +461,14 @@ def b_iv(
 ) -> np.ndarray:
     """Eq. (21): ``b_l = [(1/K) sum zeta dw1]^+ (1/K) sum zeta dwl``, ``zeta(k) = r(k-1..k-m)``."""
     k = common_periods(dw, p, shift, t_min, nb)
-    Z, ok = instruments(r, k, m, lag0)
-    k, Z = k[ok], Z[:, ok]
+    if k.size and int(k[-1] - k[0]) == k.size - 1:  # consecutive (as common_periods gives)
+        k = k[(k - lag0 - m + 1 >= 0) & (k - lag0 < r.shape[1])]  # every instrument defined
+        ZT = _lagged_rows(r, int(k[0]) - lag0 if k.size else 0, m, k.size)
+    else:
+        Z, ok = instruments(r, k, m, lag0)
+        k, ZT = k[ok], Z[:, ok].transpose(0, 2, 1)
     # every (1/K) sum zeta dwl at once, (R, m, nb)
-    C = _instrument_products(Z, period_block(dw, p, k, shift, nb)) / len(k)
+    C = _instrument_products(ZT, period_block(dw, p, k, shift, nb)) / len(k)
     g = C[:, :, 0]
     b = np.ones((dw.shape[0], nb))
     gg = np.einsum("rm,rm->r", g, g)

@@ -499,3 +499,24 @@ def test_regressions_inverted_together_equal_one_by_one(noisy):
     pp.QuietRegression.invert_together(mixed)
     mixed[0].inverse()
     assert "Rinv" not in mixed[1]._cache
+
+
+@pytest.mark.parametrize(("shift", "nb", "m"), [(0, 2, 6), (3, 3, 4), (4, 5, 1)])
+def test_iv_numerator_from_lagged_rows_equals_the_gathered_instruments(noisy, shift, nb, m):
+    """Eq. (21) with the instruments built lag by lag: the operands of the gathered, masked and
+    transposed instruments, hence the same BLAS product, bit for bit."""
+    record, _ = noisy
+    dw = pp.delta(pp.filtered_output(record.y, np.array([[1.0, -1.6, 0.64]] * record.runs)))
+    t_min = pp.first_valid(dw)
+    k = pp.common_periods(dw, record.p, shift, t_min, nb)
+    Z, ok = pp.instruments(record.r, k, m)
+    kk = k[ok]
+    C = np.matmul(
+        np.ascontiguousarray(Z[:, ok].transpose(0, 2, 1)),
+        np.ascontiguousarray(pp.period_block(dw, record.p, kk, shift, nb)),
+    ) / len(kk)
+    g = C[:, :, 0]
+    want = np.ones((record.runs, nb))
+    for l in range(2, nb + 1):
+        want[:, l - 1] = np.einsum("rm,rm->r", g, C[:, :, l - 1]) / np.einsum("rm,rm->r", g, g)
+    np.testing.assert_array_equal(pp.b_iv(dw, record.r, record.p, shift, nb, m, t_min), want)
