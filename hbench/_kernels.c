@@ -225,6 +225,136 @@ HB_EXPORT void hb_period_mean_squares(int64_t R, int64_t n, int64_t p, int64_t w
     }
 }
 
+/* Thomas loop of polyphase._thomas for one symmetric system (lower = upper = off), n >= 1. */
+static void thomas_sym(int64_t n, const double *diag, const double *off, const double *rhs,
+                       double *c, double *d, double *x)
+{
+    c[0] = n > 1 ? off[0] / diag[0] : 0.0;
+    d[0] = rhs[0] / diag[0];
+    for (int64_t i = 1; i < n; i++) {
+        double den = diag[i] - off[i - 1] * c[i - 1];
+        if (i < n - 1) c[i] = off[i] / den;
+        d[i] = (rhs[i] - off[i - 1] * d[i - 1]) / den;
+    }
+    x[n - 1] = d[n - 1];
+    for (int64_t i = n - 2; i >= 0; i--) x[i] = d[i] - c[i] * x[i + 1];
+}
+
+/*
+ * Eq. (27) through its tridiagonal normal equations (polyphase.inner_signal_ls) for R runs: W
+ * (R x M x p, zero where the sample does not exist), valid (M x p, 0/1), channel coefficients h0
+ * and h1 (R x p); U (R x (M + 1)) receives U~(n0 - 1 ..), nan for an unknown in no equation.
+ * Channel sums run from the first term. The solve is LAPACK dptsv's arithmetic (reference dpttrf,
+ * then dptts2); a run with a non-finite entry, or not positive definite, or of one unknown,
+ * takes the Thomas loop, as the numpy path does. The solve's recurrences are chains of divisions:
+ * HB_GROUP runs are solved side by side so that their chains overlap (each run's operations, and
+ * so its numbers, are those of a solve on its own).
+ */
+#define HB_GROUP 8
+HB_EXPORT int hb_inner_signal_ls(int64_t R, int64_t M, int64_t p, const double *W,
+                                 const uint8_t *valid, const double *h0, const double *h1,
+                                 double *U)
+{
+    const int64_t n = M + 1, G = HB_GROUP;
+    /* per group member: diag, off, rhs, x, d, e, free flags; then Thomas scratch c, dd */
+    double *buf = (double *)malloc(sizeof(double) * (size_t)(7 * G * n + 2 * n));
+    if (!buf) return -2;
+    double *DIAG = buf, *OFF = DIAG + G * n, *RHS = OFF + G * n, *X = RHS + G * n;
+    double *D = X + G * n, *E = D + G * n, *FREE = E + G * n, *c = FREE + G * n, *dd = c + n;
+    for (int64_t r0 = 0; r0 < R; r0 += G) {
+        int64_t g_n = R - r0 < G ? R - r0 : G;
+        int lapack[HB_GROUP];
+        for (int64_t g = 0; g < g_n; g++) {
+            int64_t r = r0 + g;
+            const double *g0 = h0 + r * p, *g1 = h1 + r * p, *Wr = W + r * M * p;
+            double *diag = DIAG + g * n, *off = OFF + g * n, *rhs = RHS + g * n;
+            double *freed = FREE + g * n;
+            double prev22 = 0.0, prev2 = 0.0;
+            for (int64_t k = 0; k < n; k++) {
+                double dg = 0.0, rh = 0.0;
+                if (k < M) {
+                    const uint8_t *v = valid + k * p;
+                    const double *w = Wr + k * p;
+                    double s11 = (g1[0] * g1[0]) * (double)v[0];
+                    double s22 = (g0[0] * g0[0]) * (double)v[0];
+                    double s12 = (g0[0] * g1[0]) * (double)v[0];
+                    double t1 = w[0] * g1[0], t2 = w[0] * g0[0];
+                    for (int64_t i = 1; i < p; i++) {
+                        s11 = s11 + (g1[i] * g1[i]) * (double)v[i];
+                        s22 = s22 + (g0[i] * g0[i]) * (double)v[i];
+                        s12 = s12 + (g0[i] * g1[i]) * (double)v[i];
+                        t1 = t1 + w[i] * g1[i];
+                        t2 = t2 + w[i] * g0[i];
+                    }
+                    dg = dg + s11;
+                    rh = rh + t1;
+                    off[k] = s12;
+                    if (k >= 1) { dg = dg + prev22; rh = rh + prev2; }
+                    prev22 = s22;
+                    prev2 = t2;
+                } else if (k >= 1) {
+                    dg = dg + prev22;
+                    rh = rh + prev2;
+                }
+                diag[k] = dg;
+                rhs[k] = rh;
+            }
+            int finite = 1;
+            for (int64_t k = 0; k < n; k++) {
+                freed[k] = diag[k] <= 0.0;
+                if (freed[k] != 0.0) { /* free: pinned, decoupled, reported nan */
+                    diag[k] = 1.0;
+                    rhs[k] = 0.0;
+                    if (k < M) off[k] = 0.0;
+                    if (k >= 1) off[k - 1] = 0.0;
+                }
+            }
+            for (int64_t k = 0; k < n && finite; k++)
+                finite = isfinite(diag[k]) && isfinite(rhs[k]) && (k == M || isfinite(off[k]));
+            lapack[g] = finite && n > 1;
+            if (lapack[g]) {
+                double *d = D + g * n, *e = E + g * n, *x = X + g * n;
+                for (int64_t k = 0; k < n; k++) { d[k] = diag[k]; x[k] = rhs[k]; }
+                for (int64_t k = 0; k < M; k++) e[k] = off[k];
+            }
+        }
+        /* dpttrf, side by side; a member whose pivot is not positive leaves LAPACK */
+        for (int64_t i = 0; i < n - 1; i++)
+            for (int64_t g = 0; g < g_n; g++) {
+                if (!lapack[g]) continue;
+                double *d = D + g * n, *e = E + g * n;
+                if (d[i] <= 0.0) { lapack[g] = 0; continue; }
+                double ei = e[i];
+                e[i] = ei / d[i];
+                d[i + 1] = d[i + 1] - e[i] * ei;
+            }
+        for (int64_t g = 0; g < g_n; g++)
+            if (lapack[g] && D[g * n + n - 1] <= 0.0) lapack[g] = 0;
+        /* dptts2 */
+        for (int64_t i = 1; i < n; i++)
+            for (int64_t g = 0; g < g_n; g++) {
+                if (!lapack[g]) continue;
+                double *x = X + g * n;
+                x[i] = x[i] - x[i - 1] * E[g * n + i - 1];
+            }
+        for (int64_t g = 0; g < g_n; g++)
+            if (lapack[g]) X[g * n + n - 1] = X[g * n + n - 1] / D[g * n + n - 1];
+        for (int64_t i = n - 2; i >= 0; i--)
+            for (int64_t g = 0; g < g_n; g++) {
+                if (!lapack[g]) continue;
+                double *x = X + g * n;
+                x[i] = x[i] / D[g * n + i] - x[i + 1] * E[g * n + i];
+            }
+        for (int64_t g = 0; g < g_n; g++) {
+            double *x = X + g * n, *freed = FREE + g * n, *Ur = U + (r0 + g) * n;
+            if (!lapack[g]) thomas_sym(n, DIAG + g * n, OFF + g * n, RHS + g * n, c, dd, x);
+            for (int64_t k = 0; k < n; k++) Ur[k] = freed[k] != 0.0 ? NAN : x[k];
+        }
+    }
+    free(buf);
+    return 0;
+}
+
 /* A module Python can import (so that setuptools builds and installs it like any extension);
  * its functions are reached through ctypes. */
 static struct PyModuleDef kernels_module = {PyModuleDef_HEAD_INIT, "_kernels",

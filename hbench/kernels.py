@@ -25,6 +25,9 @@ Kernels:
 * :func:`period_mean_squares`: ``Var{Delta w^(l)}`` of :func:`hbench.polyphase.phase_variances`.
 * :func:`lfilter_rows`: ``scipy.signal.lfilter`` with one coefficient set per run
   (:func:`hbench.polyphase.batched_lfilter`, Bai & Fu's direct inverse).
+* :func:`inner_signal_ls`: eq. (27) of :func:`hbench.polyphase.inner_signal_ls`, its normal
+  equations formed and solved with LAPACK ``dptsv``'s arithmetic (reference ``dpttrf`` and
+  ``dpttrs``, which the numpy path calls).
 """
 
 from __future__ import annotations
@@ -61,6 +64,7 @@ NONLINEARITY_CODES: dict[type[nl.Nonlinearity], tuple[int, tuple[str, ...]]] = {
 _STATE = ("x_prev", "u_prev", "x_ss", "direction", "stuck")
 
 _F64 = np.ctypeslib.ndpointer(dtype=np.float64, flags="C_CONTIGUOUS")
+_U8 = np.ctypeslib.ndpointer(dtype=np.uint8, flags="C_CONTIGUOUS")
 _I64 = ctypes.c_int64
 #: The backend :func:`use` asked for in this context (a context variable, so a thread's or
 #: task's ``use`` leaves the others alone); ``None``: ``HBENCH_KERNELS``.
@@ -110,6 +114,8 @@ def _library() -> tuple[ctypes.CDLL | None, str]:
     lib.hb_period_mean_squares.argtypes = [*(_I64,) * 4, ctypes.c_void_p, _I64, _F64]
     lib.hb_lfilter_rows.restype = ctypes.c_int
     lib.hb_lfilter_rows.argtypes = [*(_I64,) * 3, _F64, _F64, ctypes.c_void_p, _I64, _F64]
+    lib.hb_inner_signal_ls.restype = ctypes.c_int
+    lib.hb_inner_signal_ls.argtypes = [*(_I64,) * 3, _F64, _U8, _F64, _F64, _F64]
     return lib, ""
 
 
@@ -277,3 +283,24 @@ def lfilter_rows(num: np.ndarray, den: np.ndarray, x: np.ndarray) -> np.ndarray 
     if rc != 0:
         raise RuntimeError(f"hb_lfilter_rows failed with code {rc}")
     return y
+
+
+def inner_signal_ls(
+    W: np.ndarray, valid: np.ndarray, h0: np.ndarray, h1: np.ndarray
+) -> np.ndarray | None:
+    """``U~`` of eq. (27) (:func:`hbench.polyphase.inner_signal_ls`) from the SIMO blocks ``W``
+    ``(runs, M, p)``, their validity ``(M, p)`` and the channel coefficients ``(runs, p)``,
+    compiled; ``None`` when the numpy path must run."""
+    lib = _compiled()
+    if lib is None or W.ndim != 3 or valid.ndim != 2 or h0.ndim != 2 or h1.ndim != 2:
+        return None
+    R, M, p = W.shape
+    if valid.shape != (M, p) or h0.shape != (R, p) or h1.shape != (R, p) or p < 1:
+        return None
+    U = np.empty((R, M + 1))
+    rc = lib.hb_inner_signal_ls(
+        R, M, p, _f64(W), np.ascontiguousarray(valid, dtype=np.uint8), _f64(h0), _f64(h1), U
+    )
+    if rc != 0:
+        raise RuntimeError(f"hb_inner_signal_ls failed with code {rc}")
+    return U

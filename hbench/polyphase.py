@@ -23,6 +23,7 @@ from scipy import signal
 from scipy.linalg import lapack
 
 from hbench import kernels
+from hbench.ordered import ordered_products
 
 _RCOND = 1e-12
 
@@ -497,8 +498,10 @@ def solve_tridiagonal(
 
     O(M) per run, vectorised over runs. Stable for the symmetric positive definite normal
     equations of (27). A symmetric system (``lower is upper``) goes to LAPACK's ``dptsv`` as one
-    block-diagonal system of all runs (about 3x faster); this loop is the fallback when LAPACK
-    finds a run not positive definite, and the path for unsymmetric systems.
+    block-diagonal system of all runs (about 3x faster; the zero coupling makes each run's block
+    the very arithmetic of its own solve); runs with a non-finite entry, runs LAPACK finds not
+    positive definite (each then solved alone) and unsymmetric systems take this loop. A run's
+    numbers never depend on the other runs of the batch.
     """
     R, M = diag.shape
     if lower is upper and M > 1:
@@ -512,13 +515,20 @@ def solve_tridiagonal(
             e = np.zeros((R if every else int(fin.sum()), M))
             e[:, :-1] = lower[sel]  # zero coupling between consecutive runs
             _d, _e, xf, info = lapack.dptsv(diag[sel].ravel(), e.ravel()[:-1], rhs[sel].ravel())
+            if info == 0 and every:
+                return xf.reshape(R, M)
+            x = np.empty((R, M))
             if info == 0:
-                if every:
-                    return xf.reshape(R, M)
-                x = np.empty((R, M))
                 x[fin] = xf.reshape(-1, M)
-                x[~fin] = _thomas(lower[~fin], diag[~fin], lower[~fin], rhs[~fin])
-                return x
+            else:  # a run is not positive definite: each run alone, LAPACK or else the loop
+                for r in np.flatnonzero(fin):
+                    _d, _e, x[r], info_r = lapack.dptsv(diag[r], lower[r], rhs[r])
+                    if info_r != 0:
+                        x[r] = _thomas(
+                            lower[r : r + 1], diag[r : r + 1], lower[r : r + 1], rhs[r : r + 1]
+                        )[0]
+            x[~fin] = _thomas(lower[~fin], diag[~fin], lower[~fin], rhs[~fin])
+            return x
     return _thomas(lower, diag, upper, rhs)
 
 
@@ -598,26 +608,32 @@ def inner_signal_ls(sys: SimoSystem, h0: np.ndarray, h1: np.ndarray) -> np.ndarr
 
     Row ``(n, i)`` reads ``w_i(n) = h_i(0) U(n) + h_i(1) U(n-1)``. Returns ``U~(n0 - 1 ..)``,
     shape ``(runs, M + 1)``.
+
+    Every sum over the ``p`` channels runs term after term from the first
+    (:func:`hbench.ordered.ordered_products`), and the solve is LAPACK's ``dptsv`` (the reference
+    ``dpttrf``/``dpttrs`` arithmetic) or, for a run it cannot take, the Thomas loop: the compiled
+    kernel (:func:`hbench.kernels.inner_signal_ls`) does the same operations, so both paths give
+    the same numbers on any machine.
     """
-    # sum over the valid channels of each period. Periods share a handful of validity patterns
-    # (all channels but at the record's ends), so the sums are formed per pattern and spread
-    # to the periods; per-run einsums, not (runs, p) @ (p, M): BLAS takes another kernel for
-    # one run than for many, and a run's numbers must not depend on the runs batched with it
+    R = h0.shape[0]
+    M = sys.valid.shape[0]
+    compiled = kernels.inner_signal_ls(sys.W, sys.valid, h0, h1)
+    if compiled is not None:
+        return compiled
+    # sums over the valid channels of each period. Periods share a handful of validity
+    # patterns (all channels but at the record's ends): formed per pattern, spread to periods
     Vp, which = _validity_patterns(sys.valid)
 
     def per_period(h2: np.ndarray) -> np.ndarray:
-        return take_periods(np.einsum("ri,ik->rk", h2, Vp), which)
+        return take_periods(ordered_products(h2, np.ascontiguousarray(Vp.T)), which)
 
     W = sys.W
     # equation block j couples unknowns j (= U(n-1)) and j+1 (= U(n))
     a11 = per_period(h1**2)  # coefficient of U(n-1)^2
     a22 = per_period(h0**2)
     a12 = per_period(h0 * h1)
-    # both right-hand sides in one batched product (R, M, p) @ (R, p, 2): 4x faster than a
-    # loop over the p channels on the paper's example
-    B = np.matmul(W, np.stack([h1, h0], axis=2))
-    b1, b2 = B[:, :, 0], B[:, :, 1]
-    R, M = a11.shape
+    b1 = _ordered_channels(W, h1)  # (R, M)
+    b2 = _ordered_channels(W, h0)
     diag = np.zeros((R, M + 1))
     diag[:, :-1] += a11
     diag[:, 1:] += a22
@@ -634,8 +650,17 @@ def inner_signal_ls(sys: SimoSystem, h0: np.ndarray, h1: np.ndarray) -> np.ndarr
         off[free[:, :-1]] = 0.0
         off[free[:, 1:]] = 0.0
         rhs = np.where(free, 0.0, rhs)
-    U = solve_tridiagonal(off, diag, off, rhs)
+    with np.errstate(divide="ignore", invalid="ignore"):  # a singular run: inf/nan, quietly
+        U = solve_tridiagonal(off, diag, off, rhs)  # as the kernel does
     return np.where(free, np.nan, U)
+
+
+def _ordered_channels(W: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """``sum_i W[:, :, i] h[:, i]`` over the channels term after term from the first, (R, M)."""
+    out = W[:, :, 0] * h[:, 0:1]
+    for i in range(1, W.shape[2]):
+        out = out + W[:, :, i] * h[:, i : i + 1]
+    return out
 
 
 def inner_signal_dense(sys: SimoSystem, h0: np.ndarray, h1: np.ndarray) -> np.ndarray:

@@ -157,6 +157,69 @@ def test_batched_lfilter_is_scipys(n_num: int, n_den: int) -> None:
     assert kernels.lfilter_rows(num, den[:, :1], x) is None  # scipy convolves instead: its path
 
 
+def _eq27_cases(p: int = 5, M: int = 120, runs: int = 11):
+    """SIMO systems of eq. (27): ordinary runs, an unknown in no equation (h(1) = 0), a run with a
+    nan, a singular run (h(0) = h(1): the normal matrix is not positive definite) and record ends
+    with missing samples."""
+    rng = np.random.default_rng(p * M)
+    w = rng.standard_normal((runs, (M + 2) * p)) * np.exp(rng.uniform(-3, 3, (runs, 1)))
+    b = rng.standard_normal((runs, 3))
+    b[:, 0] = 1.0
+    h0, h1 = pp.simo_channels(b, p)
+    h1[1] = 0.0  # U(n0 - 1) in no equation: pinned, reported nan
+    w[2, w.shape[1] // 2] = np.nan  # a non-finite run: the Thomas loop
+    h1[3] = h0[3]  # singular: dpttrf fails, the Thomas loop takes the run
+    sys = pp.simo_system(w, p, 2, 7)
+    return sys, h0, h1
+
+
+@needs_build
+@pytest.mark.parametrize(("p", "M"), [(5, 120), (2, 1), (3, 0), (7, 40)])
+def test_inner_signal_ls_is_the_numpy_path(p: int, M: int) -> None:
+    sys, h0, h1 = _eq27_cases(p, M)
+    U = pp.inner_signal_ls(sys, h0, h1)
+    with kernels.use("numpy"):
+        U0 = pp.inner_signal_ls(sys, h0, h1)
+    np.testing.assert_array_equal(U, U0)
+    if M > 5:
+        assert np.isnan(U[1, 0]) and np.isfinite(U[1, 1:]).all()
+        assert np.isfinite(U[[0, 4, 5]]).all()
+    # each run as solved on its own (the batch's other runs, a failing one among them, play no part)
+    for r in range(U.shape[0]):
+        one = pp.SimoSystem(W=sys.W[r : r + 1], valid=sys.valid, n0=sys.n0)
+        np.testing.assert_array_equal(
+            pp.inner_signal_ls(one, h0[r : r + 1], h1[r : r + 1]), U[r : r + 1]
+        )
+        with kernels.use("numpy"):
+            np.testing.assert_array_equal(
+                pp.inner_signal_ls(one, h0[r : r + 1], h1[r : r + 1]), U[r : r + 1]
+            )
+    assert kernels.inner_signal_ls(sys.W, sys.valid[:, :1], h0, h1) is None  # shapes differ
+
+
+def test_a_run_lapack_refuses_leaves_the_others_to_lapack() -> None:
+    """``solve_tridiagonal``: a run that is not positive definite is solved by the loop alone;
+    the others keep LAPACK's numbers (those of their own solve)."""
+    rng = np.random.default_rng(4)
+    R, M = 5, 60
+    off = rng.uniform(-1.0, 1.0, (R, M - 1))
+    diag = rng.uniform(2.5, 4.0, (R, M))
+    rhs = rng.standard_normal((R, M))
+    diag[2, 30] = -1.0  # not positive definite
+    x = pp.solve_tridiagonal(off, diag, off, rhs)
+    for r in range(R):
+        o = off[r : r + 1]  # the same object twice: symmetric, LAPACK's route
+        one = pp.solve_tridiagonal(o, diag[r : r + 1], o, rhs[r : r + 1])
+        np.testing.assert_array_equal(x[r : r + 1], one)
+    o = off[[0, 1]]
+    lapack_x = pp.solve_tridiagonal(o, diag[[0, 1]], o, rhs[[0, 1]])
+    np.testing.assert_array_equal(x[[0, 1]], lapack_x)
+    loop = pp._thomas(off[2:3], diag[2:3], off[2:3], rhs[2:3])
+    np.testing.assert_array_equal(x[2:3], loop)
+    dense = np.diag(diag[2]) + np.diag(off[2], 1) + np.diag(off[2], -1)
+    np.testing.assert_allclose(dense @ x[2], rhs[2], atol=1e-9)  # the loop still solves it
+
+
 def test_shapes_the_kernels_do_not_take_go_to_numpy_and_scipy() -> None:
     """One coefficient row for every run (numpy broadcasts it), no coefficient, a[0] = 0:
     the wrappers decline (``None``) and the numpy / scipy paths answer as they always did."""
