@@ -28,6 +28,7 @@ import functools
 import os
 import sys
 from collections.abc import Iterator
+from typing import Any
 
 #: glibc's ``mallopt`` parameters (malloc.h).
 _M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
@@ -56,11 +57,20 @@ def tune_allocator() -> bool:
     return ok
 
 
+@functools.cache
+def _thread_pools() -> Any:
+    """threadpoolctl's view of the loaded thread pools, taken once per process: finding them
+    reads ``/proc/self/maps`` (~4 ms with numpy, scipy and pyarrow loaded), which every cell
+    paid before. Libraries loaded after the first batch are not limited (BLAS is loaded by
+    then: numpy and scipy are imported with hbench)."""
+    from threadpoolctl import ThreadpoolController
+
+    return ThreadpoolController()
+
+
 @contextlib.contextmanager
 def batch_settings() -> Iterator[None]:
     """One BLAS thread for the duration (restored on exit), glibc's allocator tuned."""
-    from threadpoolctl import threadpool_limits
-
     tune_allocator()
-    with threadpool_limits(limits=1, user_api="blas"):
+    with _thread_pools().limit(limits=1, user_api="blas"):
         yield
