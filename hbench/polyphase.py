@@ -564,12 +564,19 @@ class SimoSystem:
     n0: int
 
 
+def simo_periods(N: int, p: int, shift: int, t_min: int) -> tuple[int, int]:
+    """``(n0, M)``: the first period and the number of periods of :func:`simo_system` for a
+    record of ``N`` fast samples (without arranging the blocks)."""
+    n0 = max(1, -(-(t_min - 1 - shift) // p))
+    n1 = (N - 1 - 1 - shift) // p  # last period with at least its first sample
+    return int(n0), max(n1 - n0 + 1, 0)
+
+
 def simo_system(w: np.ndarray, p: int, shift: int, t_min: int) -> SimoSystem:
     """Arrange ``w`` into the SIMO blocks of (23); periods with no valid sample are dropped."""
     N = w.shape[1]
-    n0 = max(1, -(-(t_min - 1 - shift) // p))
-    n1 = (N - 1 - 1 - shift) // p  # last period with at least its first sample
-    n = np.arange(n0, n1 + 1)
+    n0, M = simo_periods(N, p, shift, t_min)
+    n = np.arange(n0, n0 + M)
     t = n[:, None] * p + np.arange(1, p + 1)[None, :] + shift
     valid = (t >= t_min) & (t < N)
     if n.size == 0:

@@ -520,3 +520,11 @@ def test_iv_numerator_from_lagged_rows_equals_the_gathered_instruments(noisy, sh
     for l in range(2, nb + 1):
         want[:, l - 1] = np.einsum("rm,rm->r", g, C[:, :, l - 1]) / np.einsum("rm,rm->r", g, g)
     np.testing.assert_array_equal(pp.b_iv(dw, record.r, record.p, shift, nb, m, t_min), want)
+
+
+@pytest.mark.parametrize(
+    ("N", "p", "shift", "t_min"), [(4165, 5, 2, 3), (40, 5, 4, 12), (9, 3, 0, 1), (6, 5, 4, 9)]
+)
+def test_simo_periods_are_those_of_the_simo_system(N, p, shift, t_min):
+    sys = pp.simo_system(np.ones((2, N)), p, shift, t_min)
+    assert pp.simo_periods(N, p, shift, t_min) == (sys.n0, sys.W.shape[1])

@@ -41,13 +41,15 @@ def inverse_inner(choice: str):
     """
 
     def inner(y, w, a, b, p, tau, t_min):
-        sys = pp.simo_system(w, p, tau, t_min)
-        n_first = sys.n0 - 1
-        M = sys.W.shape[1] + 1
+        n0, periods = pp.simo_periods(w.shape[1], p, tau, t_min)
+        n_first = n0 - 1
+        M = periods + 1
         nmp = pp.max_root_modulus(b) >= 1.0
         use_direct = (
             (~nmp) if choice in ("auto", "refuse") else np.full(b.shape[0], choice == "direct")
         )
+        if use_direct.all():  # every run (the usual case): no copies of the batch
+            return pp.inner_signal_direct(y, a, b, p, tau, n_first, M), n_first, "direct"
         U = np.full((b.shape[0], M), np.nan)
         if use_direct.any():
             U[use_direct] = pp.inner_signal_direct(
