@@ -19,6 +19,8 @@
 #define HB_SOURCE_SHA256 "unknown"
 #endif
 #define HB_EXPORT __attribute__((visibility("default")))
+/* runs computed side by side where a recursion makes each step wait on the previous one */
+#define HB_GROUP 8
 HB_EXPORT const char *hb_source_sha256(void) { return HB_SOURCE_SHA256; }
 
 /* actuator codes (hbench.kernels.NONLINEARITY_CODES) */
@@ -180,23 +182,31 @@ HB_EXPORT void hb_filtered_output(int64_t R, int64_t N, int64_t na, const double
 HB_EXPORT int hb_lfilter_rows(int64_t R, int64_t N, int64_t n, const double *num, const double *den,
                     const double *x, int64_t x_stride, double *y)
 {
-    double b[64], a[64], Z[64];
+    /* HB_GROUP runs side by side: each output waits on the previous one (the recursion), so
+     * independent runs fill the wait; a run's operations are those of a filter on its own */
+    double b[HB_GROUP][64], a[HB_GROUP][64], Z[HB_GROUP][64];
     if (n > 64 || n < 2) return -1;
-    for (int64_t r = 0; r < R; r++) {
-        const double *xr = x + r * x_stride;
-        double *yr = y + r * N;
-        double a0 = den[r * n];
-        for (int64_t k = 0; k < n; k++) {
-            b[k] = num[r * n + k] / a0;
-            a[k] = den[r * n + k] / a0;
+    for (int64_t r0 = 0; r0 < R; r0 += HB_GROUP) {
+        int64_t G = R - r0 < HB_GROUP ? R - r0 : HB_GROUP;
+        for (int64_t g = 0; g < G; g++) {
+            int64_t r = r0 + g;
+            double a0 = den[r * n];
+            for (int64_t k = 0; k < n; k++) {
+                b[g][k] = num[r * n + k] / a0;
+                a[g][k] = den[r * n + k] / a0;
+            }
+            for (int64_t k = 0; k < n - 1; k++) Z[g][k] = 0.0;
         }
-        for (int64_t k = 0; k < n - 1; k++) Z[k] = 0.0;
         for (int64_t t = 0; t < N; t++) {
-            double xn = xr[t];
-            double yn = Z[0] + b[0] * xn;
-            for (int64_t k = 0; k < n - 2; k++) Z[k] = Z[k + 1] + xn * b[k + 1] - yn * a[k + 1];
-            Z[n - 2] = xn * b[n - 1] - yn * a[n - 1];
-            yr[t] = yn;
+            for (int64_t g = 0; g < G; g++) {
+                double *zg = Z[g], *bg = b[g], *ag = a[g];
+                double xn = x[(r0 + g) * x_stride + t];
+                double yn = zg[0] + bg[0] * xn;
+                for (int64_t k = 0; k < n - 2; k++)
+                    zg[k] = zg[k + 1] + xn * bg[k + 1] - yn * ag[k + 1];
+                zg[n - 2] = xn * bg[n - 1] - yn * ag[n - 1];
+                y[(r0 + g) * N + t] = yn;
+            }
         }
     }
     return 0;
@@ -250,7 +260,6 @@ static void thomas_sym(int64_t n, const double *diag, const double *off, const d
  * HB_GROUP runs are solved side by side so that their chains overlap (each run's operations, and
  * so its numbers, are those of a solve on its own).
  */
-#define HB_GROUP 8
 HB_EXPORT int hb_inner_signal_ls(int64_t R, int64_t M, int64_t p, const double *W,
                                  const uint8_t *valid, const double *h0, const double *h1,
                                  double *U)
