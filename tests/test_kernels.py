@@ -15,8 +15,9 @@ from typing import Any, ClassVar
 
 import numpy as np
 import pytest
+from scipy import signal
 
-from hbench import kernels, scenarios
+from hbench import kernels, noise, scenarios
 from hbench import nonlinearities as nl
 from hbench import polyphase as pp
 from hbench.errors import InputError
@@ -218,6 +219,28 @@ def test_a_run_lapack_refuses_leaves_the_others_to_lapack() -> None:
     np.testing.assert_array_equal(x[2:3], loop)
     dense = np.diag(diag[2]) + np.diag(off[2], 1) + np.diag(off[2], -1)
     np.testing.assert_allclose(dense @ x[2], rhs[2], atol=1e-9)  # the loop still solves it
+
+
+@needs_build
+@pytest.mark.parametrize(
+    "model",
+    [
+        noise.White(),
+        noise.ARX(gain=0.3),
+        noise.ARMA(c=[1.0, 0.4, -0.2], d=[1.0, -0.5]),
+        noise.ContinuousFilter(num=[1.0], den=[1.0, 0.32, 0.02]),
+    ],
+    ids=lambda m: m.name,
+)
+def test_noise_shaping_is_scipys(model) -> None:
+    """Every run's noise filtered as ``scipy.signal.lfilter`` filters it (white noise: scipy's
+    own route, the kernel declines a denominator of length 1)."""
+    plant = scenarios.build(scenarios.PAPER_SECTION6).discrete_plant
+    e = np.random.default_rng(3).standard_normal((11, 500))
+    c, d = model.filter(plant)
+    np.testing.assert_array_equal(model.shape(e, plant), signal.lfilter(c, d, e, axis=-1))
+    with kernels.use("numpy"):
+        np.testing.assert_array_equal(model.shape(e, plant), signal.lfilter(c, d, e, axis=-1))
 
 
 def test_shapes_the_kernels_do_not_take_go_to_numpy_and_scipy() -> None:
