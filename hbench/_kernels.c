@@ -157,17 +157,21 @@ HB_EXPORT int hb_closed_loop(int64_t R, int64_t K, int64_t L, int64_t p, const d
  * w(t) = A(q) y(t) per run (hbench.polyphase.filtered_output): a (R x (na + 1)), y and w
  * (R x N); w(t) = nan for t < na.
  */
-HB_EXPORT void hb_filtered_output(int64_t R, int64_t N, int64_t na, const double *a, const double *y,
-                        double *w)
+HB_EXPORT void hb_filtered_output(int64_t R, int64_t N, int64_t na, const double *a,
+                                  const double *restrict y, double *restrict w)
 {
     for (int64_t i = 0; i < R; i++) {
-        const double *ai = a + i * (na + 1), *yi = y + i * N;
-        double *wi = w + i * N;
+        const double *ai = a + i * (na + 1), *restrict yi = y + i * N;
+        double *restrict wi = w + i * N;
         for (int64_t t = 0; t < na && t < N; t++) wi[t] = NAN;
-        for (int64_t t = na; t < N; t++) {
-            double acc = ai[0] * yi[t];
-            for (int64_t k = 1; k <= na; k++) acc = acc + ai[k] * yi[t - k];
-            wi[t] = acc;
+        /* lag after lag over the row (each w(t) still sums a0 y(t) + a1 y(t-1) + .. in that
+         * order): the inner loop runs over t and vectorises */
+        const double a0 = ai[0];
+        for (int64_t t = na; t < N; t++) wi[t] = a0 * yi[t];
+        for (int64_t k = 1; k <= na; k++) {
+            const double ak = ai[k];
+            const double *restrict yk = yi - k;
+            for (int64_t t = na; t < N; t++) wi[t] = wi[t] + ak * yk[t];
         }
     }
 }
