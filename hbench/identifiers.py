@@ -555,14 +555,13 @@ def select_structure(
 
 
 def _runs(a: np.ndarray, idx: np.ndarray) -> np.ndarray:
-    """``a[idx]`` for sorted distinct run indices ``idx`` (as :func:`groups` gives); when they are
-    every run of a C-ordered ``a``, a read-only view of it instead of a copy (the same values in
-    the same layout, hence the same numbers, without copying the batch)."""
-    if idx.size == a.shape[0] and a.flags.c_contiguous:
-        view = a.view()
-        view.flags.writeable = False
-        return view
-    return a[idx]
+    """``a[idx]``, read-only, for sorted distinct run indices ``idx`` (as :func:`groups` gives);
+    when they are every run of a C-ordered ``a``, a view of it instead of a copy (the same values
+    in the same layout, hence the same numbers, without copying the batch). Read-only either way,
+    so a step that writes to its input fails whatever the batch."""
+    out = a.view() if idx.size == a.shape[0] and a.flags.c_contiguous else a[idx]
+    out.flags.writeable = False
+    return out
 
 
 def groups(*keys: np.ndarray) -> list[tuple[tuple[int, ...], np.ndarray]]:

@@ -3,10 +3,10 @@
 ``hbench/_kernels.c`` is built by ``pip install`` as an optional extension (``setup.py``); this
 module loads it through :mod:`ctypes`. Each kernel performs the floating-point operations of the
 numpy path it stands for, in the same order and without fused multiply-adds, so **both paths give
-the same numbers** (equal as floats; only the sign of an exact zero may differ; checked by
-``tests/test_kernels.py`` for every built-in actuator, controllers of 0-3 states and plants of
-order 1-3): the compiled one is only faster. A run's numbers never depend on the runs batched
-with it.
+the same numbers** (equal as floats; only the sign of an exact zero, or of a nan, may differ;
+checked by ``tests/test_kernels.py`` for every built-in actuator, controllers of 0-3 states and
+plants of order 1-3): the compiled one is only faster. A run's numbers never depend on the runs
+batched with it.
 
 * ``HBENCH_KERNELS=numpy`` (environment) forces the numpy path; ``auto`` (default) uses the
   compiled kernels when they were built. :func:`use` switches for the calling thread or task
@@ -133,6 +133,11 @@ def status() -> str:
     """One line for people: which path runs and why."""
     b = backend()
     if b == "c":
+        if not lapack_is_reference():
+            return (
+                "compiled kernels (hbench._kernels); eq. (27) on the numpy path (this LAPACK's "
+                "dptsv is not the reference arithmetic the kernel mirrors)"
+            )
         return "compiled kernels (hbench._kernels)"
     why = "HBENCH_KERNELS=numpy" if _asked() == "numpy" else _library()[1]
     return f"numpy path ({why})"
@@ -290,7 +295,17 @@ def inner_signal_ls(
 ) -> np.ndarray | None:
     """``U~`` of eq. (27) (:func:`hbench.polyphase.inner_signal_ls`) from the SIMO blocks ``W``
     ``(runs, M, p)``, their validity ``(M, p)`` and the channel coefficients ``(runs, p)``,
-    compiled; ``None`` when the numpy path must run."""
+    compiled; ``None`` when the numpy path must run (also where this machine's LAPACK ``dptsv``
+    does not compute as the reference ``dpttrf``/``dpttrs`` the kernel mirrors: see
+    :func:`lapack_is_reference`)."""
+    if _compiled() is None or not lapack_is_reference():
+        return None
+    return _inner_signal_ls(W, valid, h0, h1)
+
+
+def _inner_signal_ls(
+    W: np.ndarray, valid: np.ndarray, h0: np.ndarray, h1: np.ndarray
+) -> np.ndarray | None:
     lib = _compiled()
     if lib is None or W.ndim != 3 or valid.ndim != 2 or h0.ndim != 2 or h1.ndim != 2:
         return None
@@ -304,3 +319,28 @@ def inner_signal_ls(
     if rc != 0:
         raise RuntimeError(f"hb_inner_signal_ls failed with code {rc}")
     return U
+
+
+@functools.cache
+def lapack_is_reference() -> bool:
+    """Whether scipy's LAPACK ``dptsv`` gives the reference ``dpttrf``/``dptts2`` arithmetic that
+    :func:`inner_signal_ls`'s kernel performs (no fused multiply-adds), checked once per process
+    on a fixed eq.-(27) system; where it does not (an FMA build of LAPACK), eq. (27) runs the
+    numpy path on both backends, so they still agree."""
+    lib = _compiled()
+    if lib is None:
+        return False
+    from hbench import polyphase as pp  # polyphase imports this module
+
+    rng = np.random.default_rng(27)
+    valid = np.ones((60, 5), bool)
+    valid[-1, 2:] = False
+    W = np.where(
+        valid, rng.standard_normal((4, 60, 5)) * np.exp(rng.uniform(-5, 5, (4, 1, 1))), 0.0
+    )
+    b = np.concatenate([np.ones((4, 1)), rng.standard_normal((4, 2))], axis=1)
+    h0, h1 = pp.simo_channels(b, 5)
+    got = _inner_signal_ls(W, valid, h0, h1)
+    with use("numpy"):
+        want = pp.inner_signal_ls(pp.SimoSystem(W=W, valid=valid, n0=1), h0, h1)
+    return got is not None and bool(np.array_equal(got, want))

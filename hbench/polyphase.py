@@ -515,18 +515,22 @@ def solve_tridiagonal(
             e = np.zeros((R if every else int(fin.sum()), M))
             e[:, :-1] = lower[sel]  # zero coupling between consecutive runs
             _d, _e, xf, info = lapack.dptsv(diag[sel].ravel(), e.ravel()[:-1], rhs[sel].ravel())
-            if info == 0 and every:
+            if info == 0 and every and np.isfinite(xf).all():
                 return xf.reshape(R, M)
             x = np.empty((R, M))
+            alone = np.flatnonzero(fin)
             if info == 0:
                 x[fin] = xf.reshape(-1, M)
-            else:  # a run is not positive definite: each run alone, LAPACK or else the loop
-                for r in np.flatnonzero(fin):
-                    _d, _e, x[r], info_r = lapack.dptsv(diag[r], lower[r], rhs[r])
-                    if info_r != 0:
-                        x[r] = _thomas(
-                            lower[r : r + 1], diag[r : r + 1], lower[r : r + 1], rhs[r : r + 1]
-                        )[0]
+                # an overflowing run (inf) makes its predecessor nan through the zero coupling
+                # (x * 0): runs whose solution is not finite are solved again on their own
+                alone = alone[~np.isfinite(x[alone]).all(axis=1)]
+            # (otherwise a run is not positive definite: each run alone, LAPACK or the loop)
+            for r in alone:
+                _d, _e, x[r], info_r = lapack.dptsv(diag[r], lower[r], rhs[r])
+                if info_r != 0:
+                    x[r] = _thomas(
+                        lower[r : r + 1], diag[r : r + 1], lower[r : r + 1], rhs[r : r + 1]
+                    )[0]
             x[~fin] = _thomas(lower[~fin], diag[~fin], lower[~fin], rhs[~fin])
             return x
     return _thomas(lower, diag, upper, rhs)

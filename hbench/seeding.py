@@ -57,6 +57,8 @@ def run_streams(
 
 def _seed_sequence(rng: np.random.Generator) -> np.random.SeedSequence:
     seq = rng.bit_generator.seed_seq
+    if isinstance(seq, _Seeded):  # a stream of hbench's, parent in its turn
+        seq = seq._sequence()
     if not isinstance(seq, np.random.SeedSequence):
         raise TypeError("the generator must be seeded through a numpy.random.SeedSequence")
     return seq
@@ -134,7 +136,10 @@ def _pcg64_seeds(seq: np.random.SeedSequence, keys: list[tuple[int, ...]]) -> np
     if len(run) < seq.pool_size:
         run = run + [0] * (seq.pool_size - len(run))
     width = len(keys[0])
-    suffix = np.array(keys, dtype=np.int64)
+    try:
+        suffix = np.array(keys, dtype=np.int64)
+    except (OverflowError, ValueError):  # keys beyond int64, or of unequal lengths
+        return None
     if suffix.ndim != 2 or suffix.shape[1] != width or suffix.min() < 0 or suffix.max() > _MASK32:
         return None  # a key word beyond 32 bits spreads over several words: numpy's route
     n = len(keys)
@@ -204,9 +209,13 @@ class _Seeded(ISpawnableSeedSequence):
         return self._sequence().spawn(n_children)
 
     def __getattr__(self, name: str) -> Any:
-        if name.startswith("__"):
+        if name.startswith("_"):  # own slots (unset only on a bare instance) and dunders
             raise AttributeError(name)
         return getattr(self._sequence(), name)
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        """Pickled as the SeedSequence it stands for (any protocol)."""
+        return (_child_sequence, (self._parent, self._key))
 
     def __repr__(self) -> str:
         return repr(self._sequence())

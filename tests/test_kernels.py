@@ -54,6 +54,7 @@ def test_ci_has_the_compiled_kernels() -> None:
     if os.environ.get("HBENCH_REQUIRE_KERNELS") != "1":
         pytest.skip("HBENCH_REQUIRE_KERNELS is not set (CI sets it)")
     assert BUILT, kernels.status()
+    assert kernels.lapack_is_reference(), kernels.status()  # eq. (27) runs compiled in CI
 
 
 @needs_build
@@ -196,6 +197,28 @@ def test_inner_signal_ls_is_the_numpy_path(p: int, M: int) -> None:
                 pp.inner_signal_ls(one, h0[r : r + 1], h1[r : r + 1]), U[r : r + 1]
             )
     assert kernels.inner_signal_ls(sys.W, sys.valid[:, :1], h0, h1) is None  # shapes differ
+
+
+@needs_build
+def test_an_overflowing_run_leaves_its_neighbours_alone() -> None:
+    """A run whose solution overflows (inf) would turn its predecessor in the batched LAPACK
+    system into nan (inf times the zero coupling): such runs are solved again on their own, as the
+    kernel solves every run (review's reproducer)."""
+    W = np.array([[[1.0, 2.0]], [[1e200, 1e200]]])
+    valid = np.ones((1, 2), bool)
+    h0 = np.array([[1.0, 0.5], [1e-150, 2e-150]])
+    h1 = np.array([[0.3, 0.2], [3e-150, 1e-150]])
+    sys = pp.SimoSystem(W=W, valid=valid, n0=1)
+    U = pp.inner_signal_ls(sys, h0, h1)
+    with kernels.use("numpy"):
+        U0 = pp.inner_signal_ls(sys, h0, h1)
+        alone = pp.inner_signal_ls(pp.SimoSystem(W=W[:1], valid=valid, n0=1), h0[:1], h1[:1])
+    np.testing.assert_array_equal(U, U0)
+    np.testing.assert_array_equal(U0[:1], alone)
+    assert np.isfinite(U0[0]).all() and not np.isfinite(U0[1]).all()
+    assert (kernels.inner_signal_ls(W, valid, h0, h1) is None) == (
+        not kernels.lapack_is_reference()
+    )
 
 
 def test_a_run_lapack_refuses_leaves_the_others_to_lapack() -> None:

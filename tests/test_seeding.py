@@ -79,3 +79,36 @@ def test_a_stream_keeps_its_seed_sequence() -> None:
 
 def test_the_bulk_hash_is_checked_against_numpy() -> None:
     assert seeding._fast_seeding_agrees()
+
+
+def test_a_stream_is_a_parent_in_its_turn_and_pickles_as_its_seed_sequence() -> None:
+    """A run's stream spawns runs (and seeds a simulation) like the generator numpy would have
+    made; it pickles with any protocol, as the SeedSequence it stands for."""
+    import pickle
+
+    from hbench import scenarios
+    from hbench.simulate import simulate
+
+    seq = np.random.SeedSequence(2026)
+    child = seeding.spawn_runs(np.random.Generator(np.random.PCG64(seq)), 2)[1]
+    want = _numpy_child(seq, (1,))
+    for a, b in zip(seeding.spawn_runs(child, 3), seeding.spawn_runs(want, 3), strict=True):
+        assert a.bit_generator.state == b.bit_generator.state
+    sc = scenarios.build({**scenarios.PAPER_SECTION6, "duration": 30.0})
+    np.testing.assert_array_equal(simulate(sc, 2, child)[0].y, simulate(sc, 2, want)[0].y)
+    for protocol in range(pickle.HIGHEST_PROTOCOL + 1):
+        seq_back = pickle.loads(pickle.dumps(child.bit_generator.seed_seq, protocol))
+        assert isinstance(seq_back, np.random.SeedSequence)
+        assert seq_back.spawn_key == (1,) and seq_back.entropy == 2026
+        g = pickle.loads(pickle.dumps(child, protocol))
+        assert g.bit_generator.state == child.bit_generator.state
+    bare = object.__new__(seeding._Seeded)
+    with pytest.raises(AttributeError):
+        bare.entropy  # noqa: B018 - no recursion on an instance without its slots
+
+
+def test_keys_beyond_int64_take_numpys_route() -> None:
+    seq = np.random.SeedSequence(3)
+    assert seeding._pcg64_seeds(seq, [(2**63,), (2**63 + 1,)]) is None
+    g = seeding.spawn_runs(np.random.Generator(np.random.PCG64(seq)), 1, start=2**64)[0]
+    assert g.bit_generator.state == _numpy_child(seq, (2**64,)).bit_generator.state
