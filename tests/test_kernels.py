@@ -55,6 +55,7 @@ def test_ci_has_the_compiled_kernels() -> None:
         pytest.skip("HBENCH_REQUIRE_KERNELS is not set (CI sets it)")
     assert BUILT, kernels.status()
     assert kernels.lapack_is_reference(), kernels.status()  # eq. (27) runs compiled in CI
+    assert kernels.lfilter_is_scipys(), kernels.status()  # and lfilter
 
 
 @needs_build
@@ -378,3 +379,18 @@ def test_use_switches_the_backend_of_its_own_thread_only() -> None:
     t.join()
     assert seen == {"here": "numpy", "other": outside}
     assert kernels.backend() == outside
+
+
+@needs_build
+def test_libraries_that_compute_otherwise_keep_their_own_route(monkeypatch) -> None:
+    """Where scipy's dptsv or lfilter would not give the kernels' numbers (fused multiply-adds in
+    their build), the kernels decline and say so: both backends then take the library's route."""
+    monkeypatch.setattr(kernels, "lapack_is_reference", lambda: False)
+    monkeypatch.setattr(kernels, "lfilter_is_scipys", lambda: False)
+    x = np.ones((2, 10))
+    assert kernels.lfilter_rows(np.ones((2, 2)), np.array([[1.0, -0.5]] * 2), x) is None
+    assert (
+        kernels.inner_signal_ls(np.ones((2, 3, 2)), np.ones((3, 2), bool), x[:, :2], x[:, :2])
+        is None
+    )
+    assert "eq. (27)" in kernels.status() and "lfilter" in kernels.status()
