@@ -608,8 +608,7 @@ def _validity_patterns(valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     bits = np.arange(p - 1, -1, -1, dtype=np.int64)  # the first column most significant
     key = valid.astype(np.int64) @ (np.int64(1) << bits)
     codes, which = np.unique(key, return_inverse=True)
-    # the same layout as ``np.unique(valid, axis=0)[0].astype(float).T`` (a transposed C array,
-    # in the same order): einsum's summation order follows the operands' layout
+    # the same patterns, in the same order, as ``np.unique(valid, axis=0)[0].astype(float).T``
     patterns = ((codes[:, None] >> bits[None, :]) & 1).astype(float)
     return patterns.T, which.ravel()
 
