@@ -65,8 +65,8 @@ call; the IV instruments built from slices instead of a gather; eq. (27) compile
 equations and LAPACK ``dptsv``'s reference arithmetic, 8 runs side by side; the numpy path sums
 the channels in order instead of a BLAS matmul: the only change of numbers, at rounding level);
 the ``lfilter`` kernel 8 runs side by side, now also shaping the noise; threadpoolctl's scan once
-per process. Two CI runs: 1444 and 1208 runs/s in one process, 1881 and 1706 with ``jobs=2``, the
-numpy path 836 and 755 (1.7x, 1.6x);
+per process. Three CI runs: 1444, 1208 and 1182 runs/s in one process, 1881, 1706 and 1684 with
+``jobs=2``, the numpy path 836, 755 and 736 (1.6-1.7x);
 interleaved best-of-5 cells against the session's start: 1405-1490 against 1089-1100 runs/s
 (~1.3x), 1950-2140 against 1260-1580 with ``jobs=2``. Still dominating, ~0.70 s of CPU per 1000
 runs (cProfile shares): simulation ~0.2 s (Gaussian draws 0.05 s, the compiled loop 0.04 s, the
