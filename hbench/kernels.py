@@ -287,7 +287,7 @@ def lfilter_is_scipys() -> bool:
     """Whether the kernel of :func:`lfilter_rows` gives ``scipy.signal.lfilter``'s numbers here
     (scipy built without fused multiply-adds), checked once per process on a fixed filter; where
     it does not, scipy filters on both backends (the noise shaping and Bai & Fu's inverse), so
-    they still agree."""
+    they still agree. Like :func:`lapack_is_reference`, independent of the backend switch."""
     from scipy import signal
 
     rng = np.random.default_rng(11)
@@ -300,7 +300,7 @@ def lfilter_is_scipys() -> bool:
 
 
 def _lfilter_rows(num: np.ndarray, den: np.ndarray, x: np.ndarray) -> np.ndarray | None:
-    lib = _compiled()
+    lib = _library()[0]  # the build, whatever the switch (the public wrapper reads that)
     if lib is None or x.ndim != 2 or num.ndim != 2 or den.ndim != 2:
         return None
     n = max(num.shape[1], den.shape[1])
@@ -339,7 +339,7 @@ def inner_signal_ls(
 def _inner_signal_ls(
     W: np.ndarray, valid: np.ndarray, h0: np.ndarray, h1: np.ndarray
 ) -> np.ndarray | None:
-    lib = _compiled()
+    lib = _library()[0]  # the build, whatever the switch (the public wrapper reads that)
     if lib is None or W.ndim != 3 or valid.ndim != 2 or h0.ndim != 2 or h1.ndim != 2:
         return None
     R, M, p = W.shape
@@ -359,9 +359,9 @@ def lapack_is_reference() -> bool:
     """Whether scipy's LAPACK ``dptsv`` gives the reference ``dpttrf``/``dptts2`` arithmetic that
     :func:`inner_signal_ls`'s kernel performs (no fused multiply-adds), checked once per process
     on a fixed eq.-(27) system; where it does not (an FMA build of LAPACK), eq. (27) runs the
-    numpy path on both backends, so they still agree."""
-    lib = _compiled()
-    if lib is None:
+    numpy path on both backends, so they still agree. A property of the build and the libraries,
+    not of the backend switch (:func:`use`), which it neither reads nor depends on."""
+    if _library()[0] is None:
         return False
     from hbench import polyphase as pp  # polyphase imports this module
 

@@ -382,6 +382,24 @@ def test_use_switches_the_backend_of_its_own_thread_only() -> None:
 
 
 @needs_build
+def test_the_library_checks_do_not_read_the_backend_switch() -> None:
+    """Asked first inside ``use("numpy")``, the once-per-process checks still answer for the
+    build (a cached "no" would have kept eq. (27) and lfilter off the kernels for good)."""
+    kernels.lapack_is_reference.cache_clear()
+    kernels.lfilter_is_scipys.cache_clear()
+    try:
+        with kernels.use("numpy"):
+            inside = (kernels.lapack_is_reference(), kernels.lfilter_is_scipys())
+        assert inside == (kernels.lapack_is_reference(), kernels.lfilter_is_scipys())
+        kernels.lapack_is_reference.cache_clear()
+        kernels.lfilter_is_scipys.cache_clear()
+        assert inside == (kernels.lapack_is_reference(), kernels.lfilter_is_scipys())
+    finally:
+        kernels.lapack_is_reference.cache_clear()
+        kernels.lfilter_is_scipys.cache_clear()
+
+
+@needs_build
 def test_libraries_that_compute_otherwise_keep_their_own_route(monkeypatch) -> None:
     """Where scipy's dptsv or lfilter would not give the kernels' numbers (fused multiply-adds in
     their build), the kernels decline and say so: both backends then take the library's route."""
