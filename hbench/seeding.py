@@ -8,6 +8,7 @@ cell's numbers do not depend on which other cells ran or in which order.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 from collections.abc import Mapping
@@ -221,20 +222,15 @@ class _Seeded(ISpawnableSeedSequence):
         return repr(self._sequence())
 
 
-_AGREES: bool | None = None
-
-
+@functools.cache
 def _fast_seeding_agrees() -> bool:
     """Whether :func:`_pcg64_seeds` gives numpy's words (checked once per process on keys that
     exercise every branch); if a future numpy changed SeedSequence, numpy's route is taken."""
-    global _AGREES
-    if _AGREES is None:
-        seq = np.random.SeedSequence([7, 2**40 + 3, 0], spawn_key=(5,), pool_size=4)
-        keys = [(0, 0), (1, 1), (2**32 - 1, 3)]
-        got = _pcg64_seeds(seq, keys)
-        want = [_child_sequence(seq, key).generate_state(4, np.uint64) for key in keys]
-        _AGREES = got is not None and bool(np.array_equal(got, np.stack(want)))
-    return _AGREES
+    seq = np.random.SeedSequence([7, 2**40 + 3, 0], spawn_key=(5,), pool_size=4)
+    keys = [(0, 0), (1, 1), (2**32 - 1, 3)]
+    got = _pcg64_seeds(seq, keys)
+    want = [_child_sequence(seq, key).generate_state(4, np.uint64) for key in keys]
+    return got is not None and bool(np.array_equal(got, np.stack(want)))
 
 
 def cell_seed(base_seed: int, axes: Mapping[str, Any]) -> np.random.SeedSequence:
