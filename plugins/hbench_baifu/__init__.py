@@ -50,23 +50,19 @@ def inverse_inner(choice: str):
         )
         if use_direct.all():  # every run (the usual case): no copies of the batch
             return pp.inner_signal_direct(y, a, b, p, tau, n_first, M), n_first, "direct"
+        # from here on some runs are not minimum phase (or the Bezout combiner was chosen)
         U = np.full((b.shape[0], M), np.nan)
         if use_direct.any():
             U[use_direct] = pp.inner_signal_direct(
                 y[use_direct], a[use_direct], b[use_direct], p, tau, n_first, M
             )
+        if choice == "refuse":
+            return U, n_first, "refused-nmp"  # runs without an estimate get its reason
         rest = ~use_direct
-        if rest.any() and choice != "refuse":
-            h0, h1 = pp.simo_channels(b[rest], p)
-            sys_rest = pp.simo_system(w[rest], p, tau, t_min)
-            U[rest] = pp.inner_signal_bezout(sys_rest, h0, h1)[:, :M]
-        if choice == "refuse" and rest.any():
-            label = "refused-nmp"  # runs without an estimate get this reason in blind_fit
-        elif use_direct.all():
-            label = "direct"
-        else:
-            label = "bezout" if not use_direct.any() else "direct+bezout"
-        return U, n_first, label
+        h0, h1 = pp.simo_channels(b[rest], p)
+        sys_rest = pp.simo_system(w[rest], p, tau, t_min)
+        U[rest] = pp.inner_signal_bezout(sys_rest, h0, h1)[:, :M]
+        return U, n_first, "direct+bezout" if use_direct.any() else "bezout"
 
     return inner
 
