@@ -3,8 +3,8 @@
  *
  * Each function does, for one run after another, the very floating-point operations of the
  * numpy path it replaces, in the same order (sums run sequentially from the first product, as
- * hbench.ordered does; no fused multiply-add: compiled with -ffp-contract=off), so the two
- * paths give the same numbers;
+ * hbench.ordered does, or, for the fitness's row sums, as numpy's pairwise summation; no fused
+ * multiply-add: compiled with -ffp-contract=off), so the two paths give the same numbers;
  * tests/test_kernels.py checks this. A run's numbers never depend on the other runs of the
  * batch. Arrays are C-contiguous float64, checked by the Python wrappers.
  */
@@ -226,16 +226,159 @@ HB_EXPORT int hb_lfilter_rows(int64_t R, int64_t N, int64_t n, const double *num
 HB_EXPORT void hb_period_mean_squares(int64_t R, int64_t n, int64_t p, int64_t width,
                                       const double *a, int64_t a_stride, double *out)
 {
+    /* period after period, the width sums side by side (each still adds its terms in order) */
+    double acc[64];
     for (int64_t r = 0; r < R; r++) {
         const double *ar = a + r * a_stride;
-        for (int64_t l = 0; l < width; l++) {
-            double acc = ar[l] * ar[l];
+        for (int64_t l0 = 0; l0 < width; l0 += 64) {
+            int64_t w = width - l0 < 64 ? width - l0 : 64;
+            const double *a0 = ar + l0;
+            for (int64_t l = 0; l < w; l++) acc[l] = a0[l] * a0[l];
             for (int64_t j = 1; j < n; j++) {
-                double v = ar[j * p + l];
-                acc = acc + v * v;
+                const double *aj = a0 + j * p;
+                for (int64_t l = 0; l < w; l++) acc[l] = acc[l] + aj[l] * aj[l];
             }
-            out[r * width + l] = acc / (double)n;
+            for (int64_t l = 0; l < w; l++) out[r * width + l0 + l] = acc[l] / (double)n;
         }
+    }
+}
+
+/*
+ * Table 2's variances of Delta w, w = A(q) y, without forming w (identifiers.select_structure:
+ * polyphase.filtered_phase_variances): out[r, l] = (1/n) sum_j dw(t0 + j p + l)^2 for
+ * l = 0 .. p-1, j = 0 .. n-1, where w(t) = a0 y(t) + a1 y(t-1) + .. + a_na y(t - na) summed in
+ * that order (hb_filtered_output's) and dw(t) = w(t) - w(t-1) (polyphase.delta's); the sums are
+ * hb_period_mean_squares'. t0 - 1 >= na (every w defined), t0 + n p <= N. y has row stride N.
+ */
+/* acc[l] += sq[i + l] for l < p, period after period from i to m (each sum in order) */
+static inline __attribute__((always_inline)) void add_periods(double *restrict acc,
+                                                              const double *restrict sq,
+                                                              int64_t i, int64_t m, int64_t p)
+{
+    double s[64];
+    for (int64_t l = 0; l < p; l++) s[l] = acc[l];
+    for (; i < m; i += p)
+        for (int64_t l = 0; l < p; l++) s[l] = s[l] + sq[i + l];
+    for (int64_t l = 0; l < p; l++) acc[l] = s[l];
+}
+
+HB_EXPORT void hb_filtered_phase_variances(int64_t R, int64_t N, int64_t na, const double *a,
+                                           const double *y, int64_t p, int64_t t0, int64_t n,
+                                           double *out)
+{
+    /* blocks of whole periods: w over the block lag after lag (the loops over samples
+     * vectorise), then its differences and their squares added to the phase sums in order */
+    enum { SPAN = 1024 };
+    double acc[64], wbuf[SPAN], sq[SPAN];
+    const int64_t per_block = SPAN / p;
+    for (int64_t r = 0; r < R; r++) {
+        const double *ar = a + r * (na + 1), *yr = y + r * N;
+        const double a0 = ar[0];
+        double prev = a0 * yr[t0 - 1];
+        for (int64_t k = 1; k <= na; k++) prev = prev + ar[k] * yr[t0 - 1 - k];
+        for (int64_t j0 = 0; j0 < n; j0 += per_block) {
+            const int64_t m = (n - j0 < per_block ? n - j0 : per_block) * p;
+            const double *yj = yr + t0 + j0 * p;
+            for (int64_t i = 0; i < m; i++) wbuf[i] = a0 * yj[i];
+            for (int64_t k = 1; k <= na; k++) {
+                const double ak = ar[k];
+                for (int64_t i = 0; i < m; i++) wbuf[i] = wbuf[i] + ak * yj[i - k];
+            }
+            sq[0] = (wbuf[0] - prev) * (wbuf[0] - prev);
+            for (int64_t i = 1; i < m; i++) sq[i] = (wbuf[i] - wbuf[i - 1]) * (wbuf[i] - wbuf[i - 1]);
+            prev = wbuf[m - 1];
+            int64_t i = 0;
+            if (j0 == 0) {
+                for (int64_t l = 0; l < p; l++) acc[l] = sq[l];
+                i = p;
+            }
+            switch (p) { /* a known p keeps the p sums in registers, side by side */
+            case 2: add_periods(acc, sq, i, m, 2); break;
+            case 3: add_periods(acc, sq, i, m, 3); break;
+            case 4: add_periods(acc, sq, i, m, 4); break;
+            case 5: add_periods(acc, sq, i, m, 5); break;
+            case 6: add_periods(acc, sq, i, m, 6); break;
+            case 7: add_periods(acc, sq, i, m, 7); break;
+            case 8: add_periods(acc, sq, i, m, 8); break;
+            default: add_periods(acc, sq, i, m, p);
+            }
+        }
+        for (int64_t l = 0; l < p; l++) out[r * p + l] = acc[l] / (double)n;
+    }
+}
+
+/*
+ * numpy's sum of n doubles along a contiguous row (np.add.reduce, DOUBLE_pairwise_sum): below 8
+ * terms one after another; up to 128 eight interleaved partial sums, joined as
+ * ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7)), then the rest one after another; beyond,
+ * the two halves (the first a multiple of 8 long) summed so and added. The reduction adds the
+ * result to its initial 0. kernels.sums_are_numpys checks this against numpy once per process.
+ */
+static double pairwise_sum(const double *a, int64_t n)
+{
+    if (n < 8) {
+        double res = 0.0;
+        for (int64_t i = 0; i < n; i++) res += a[i];
+        return res;
+    }
+    if (n <= 128) {
+        double r[8];
+        int64_t i;
+        for (int64_t j = 0; j < 8; j++) r[j] = a[j];
+        for (i = 8; i < n - (n % 8); i += 8)
+            for (int64_t j = 0; j < 8; j++) r[j] += a[i + j];
+        double res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]));
+        for (; i < n; i++) res += a[i];
+        return res;
+    }
+    int64_t n2 = n / 2;
+    n2 -= n2 % 8;
+    return pairwise_sum(a, n2) + pairwise_sum(a + n2, n - n2);
+}
+
+static double np_sum(const double *a, int64_t n) { return 0.0 + pairwise_sum(a, n); }
+
+/*
+ * metrics.fitnesses for the scalings "gain" and "ls" (R runs of K samples, C order): the same
+ * elementwise operations, each row's sums numpy's (np_sum). gain (R), out_gain and out_ls (R);
+ * work holds 3 K doubles. Returns nothing: a run without two common samples gets nan.
+ */
+HB_EXPORT void hb_fitness(int64_t R, int64_t K, const double *Ue, const double *U,
+                          const double *gain, double *out_gain, double *out_ls, double *work)
+{
+    double *e = work, *u = work + K, *t = work + 2 * K;
+    for (int64_t r = 0; r < R; r++) {
+        const double *Uer = Ue + r * K, *Ur = U + r * K;
+        int64_t n = 0;
+        for (int64_t i = 0; i < K; i++) {
+            int m = isfinite(Uer[i]) && isfinite(Ur[i]);
+            n += m;
+            e[i] = m ? Uer[i] : 0.0;
+            u[i] = m ? Ur[i] : 0.0;
+        }
+        double mean_u = np_sum(u, K) / (double)n;
+        for (int64_t i = 0; i < K; i++) {
+            double d = (isfinite(Uer[i]) && isfinite(Ur[i])) ? u[i] - mean_u : 0.0;
+            t[i] = d * d;
+        }
+        double den = sqrt(np_sum(t, K));
+        double g = gain[r];
+        for (int64_t i = 0; i < K; i++) {
+            double d = (isfinite(Uer[i]) && isfinite(Ur[i])) ? e[i] / g - u[i] : 0.0;
+            t[i] = d * d;
+        }
+        double num = sqrt(np_sum(t, K));
+        out_gain[r] = n > 1 ? 100.0 * (1.0 - num / den) : NAN;
+        for (int64_t i = 0; i < K; i++) t[i] = e[i] * u[i];
+        double seu = np_sum(t, K);
+        for (int64_t i = 0; i < K; i++) t[i] = e[i] * e[i];
+        double c = seu / np_sum(t, K);
+        for (int64_t i = 0; i < K; i++) {
+            double d = (isfinite(Uer[i]) && isfinite(Ur[i])) ? c * e[i] - u[i] : 0.0;
+            t[i] = d * d;
+        }
+        num = sqrt(np_sum(t, K));
+        out_ls[r] = n > 1 ? 100.0 * (1.0 - num / den) : NAN;
     }
 }
 

@@ -11,6 +11,7 @@ The structure selection (Section 6, steps (i)-(iii)) is shared: :func:`select_st
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar
@@ -325,6 +326,35 @@ def _last_of_block(mask: np.ndarray, p: int) -> np.ndarray:
     return np.where(full, p - 1, np.argmax(last, axis=-1))
 
 
+#: Largest p whose cyclic blocks are read from tables of every bit pattern (2**p rows).
+_TABLE_P = 12
+
+
+@functools.cache
+def _block_tables(p: int) -> tuple[np.ndarray, np.ndarray]:
+    """For every pattern of ``p`` bits ``m`` (row ``m``): :func:`_blocks` of the pattern
+    ``(2**p, p)`` and :func:`_last_of_block` of the mask ``m`` ``(2**p,)``. Built by those
+    functions, so a lookup gives their values exactly; read-only (shared by every call)."""
+    patterns = ((np.arange(2**p)[:, None] >> np.arange(p)) & 1).astype(bool)
+    blocks, last = _blocks(patterns), _last_of_block(np.arange(2**p), p)
+    blocks.flags.writeable = last.flags.writeable = False
+    return blocks, last
+
+
+def _own_blocks(q: np.ndarray, own: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(block, last)``: for each row ``s`` of ``q`` (..., p, p) where ``own``, the mask of the
+    cyclic run of True containing position ``s`` (else 0), and the last shift of that mask."""
+    p = q.shape[-1]
+    if p > _TABLE_P:
+        diag = np.arange(p)[None, None, :, None]
+        block = np.where(own, np.take_along_axis(_blocks(q), diag, axis=3)[..., 0], 0)
+        return block, _last_of_block(block, p)
+    blocks, last = _block_tables(p)
+    pattern = np.where(q, 1 << np.arange(p), 0).sum(axis=-1)
+    block = np.where(own, blocks[pattern, np.arange(p)], 0)
+    return block, last[block]
+
+
 def _select_common_a(
     C: np.ndarray,
     na_values: np.ndarray,
@@ -337,10 +367,8 @@ def _select_common_a(
     fl = floor[:, None, None, None]
     q = C <= (1 + rule.tol_tau) * C.min(axis=3, keepdims=True) + fl  # (R, n_na, s, s')
     own = np.einsum("rass->ras", q)  # the estimate from s explains s
-    block = np.where(
-        own, np.take_along_axis(_blocks(q), np.arange(p)[None, None, :, None], axis=3)[..., 0], 0
-    )  # (R, n_na, s)
-    valid = own & allowed[_last_of_block(block, p)]
+    block, last = _own_blocks(q, own)  # (R, n_na, s)
+    valid = own & allowed[last]
     # support: shifts of the same order whose own block is the same
     same = (block[..., :, None] == block[..., None, :]) & valid[..., None, :]
     support = np.where(valid, same.sum(axis=3), 0)
@@ -368,7 +396,8 @@ def _select_common_a(
     ok = eligible & (lev_o <= (1 + rule.tol_na) * best + floor[:, None])
     ia = np.argmax(ok, axis=1)
     na = na_values[ia]
-    tau = _last_of_block(blk_o[np.arange(R), ia], p)
+    blk = blk_o[np.arange(R), ia]
+    tau = _block_tables(p)[1][blk] if p <= _TABLE_P else _last_of_block(blk, p)
     none = ~ok.any(axis=1)
     if none.any():  # nothing explains itself: fall back to the paper's table
         V = np.einsum("rass->ras", C[none])
@@ -544,8 +573,7 @@ def select_structure(
         phases = tuple(range(options.nb_max + 1, p + 1)) if pooled else (p,)
         reg = pp.quiet_regression(_runs(dy, idx), p, key[0], phases, key[1], moments=lm.take(idx))
         a = np.concatenate([np.ones((idx.size, 1)), fit(reg, idx)[0]], axis=1)
-        dw = pp.delta(pp.filtered_output(_runs(y, idx), a))
-        var_dw[idx] = pp.phase_variances(dw, p, key[1], t_min=key[0] + 1)
+        var_dw[idx] = pp.filtered_phase_variances(_runs(y, idx), a, p, key[1], t_min=key[0] + 1)
     nb = (
         _select_nb(var_dw, options.nb_max, rule, scale)
         if options.nb is None

@@ -112,6 +112,10 @@ def _library() -> tuple[ctypes.CDLL | None, str]:
     lib.hb_filtered_output.argtypes = [*(_I64,) * 3, _F64, _F64, _F64]
     lib.hb_period_mean_squares.restype = None
     lib.hb_period_mean_squares.argtypes = [*(_I64,) * 4, ctypes.c_void_p, _I64, _F64]
+    lib.hb_filtered_phase_variances.restype = None
+    lib.hb_filtered_phase_variances.argtypes = [*(_I64,) * 3, _F64, _F64, *(_I64,) * 3, _F64]
+    lib.hb_fitness.restype = None
+    lib.hb_fitness.argtypes = [*(_I64,) * 2, *(_F64,) * 6]
     lib.hb_lfilter_rows.restype = ctypes.c_int
     lib.hb_lfilter_rows.argtypes = [*(_I64,) * 3, _F64, _F64, ctypes.c_void_p, _I64, _F64]
     lib.hb_inner_signal_ls.restype = ctypes.c_int
@@ -138,6 +142,7 @@ def status() -> str:
             for what, same in (
                 ("eq. (27) (this LAPACK's dptsv)", lapack_is_reference()),
                 ("lfilter (this scipy's)", lfilter_is_scipys()),
+                ("the fitness (this numpy's sums)", sums_are_numpys()),
             )
             if not same
         ]
@@ -270,6 +275,81 @@ def period_mean_squares(block: np.ndarray) -> np.ndarray | None:
     out = np.empty((R, width))
     lib.hb_period_mean_squares(R, n, s1 // 8, width, block.ctypes.data, s0 // 8, out)
     return out
+
+
+def filtered_phase_variances(
+    y: np.ndarray, a: np.ndarray, p: int, t0: int, n: int
+) -> np.ndarray | None:
+    """``(1/n) sum_j dw(t0 + j p + l)^2`` for ``l = 0 .. p - 1``, ``dw = delta(A(q) y)`` per run
+    (what :func:`hbench.polyphase.phase_variances` computes from :func:`filtered_output`'s
+    ``w``), compiled without forming ``w`` or ``dw``: the same operations in the same order.
+    ``None`` when numpy must run (numpy path, ``p < 2`` where numpy sums pairwise, ``p > 64``,
+    no period, or a window that reaches an undefined ``w``)."""
+    lib = _compiled()
+    if lib is None or y.ndim != 2 or a.ndim != 2 or a.shape[0] != y.shape[0] or a.shape[1] < 1:
+        return None
+    R, N = y.shape
+    na = a.shape[1] - 1
+    if not 2 <= p <= 64 or n < 1 or t0 - 1 < na or t0 + n * p > N:
+        return None
+    y, a = _f64(y), _f64(a)
+    out = np.empty((R, p))
+    lib.hb_filtered_phase_variances(R, N, na, a, y, p, t0, n, out)
+    return out
+
+
+def fitness(
+    U_est: np.ndarray, U: np.ndarray, gain: np.ndarray
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """:func:`hbench.metrics.fitnesses` under the scalings ``"gain"`` and ``"ls"``, compiled:
+    ``(F_gain, F_ls)`` per run. ``None`` when numpy must run: numpy path, inputs that are not
+    C-ordered float64 rows of one shape (numpy would sum them in another order), or a numpy
+    whose row sums are not the kernel's (:func:`sums_are_numpys`)."""
+    if _compiled() is None or not sums_are_numpys():
+        return None
+    return _fitness(U_est, U, gain)
+
+
+def _fitness(
+    U_est: np.ndarray, U: np.ndarray, gain: np.ndarray
+) -> tuple[np.ndarray, np.ndarray] | None:
+    lib = _library()[0]
+    if lib is None or U_est.ndim != 2 or U.shape != U_est.shape or U.shape[1] < 1:
+        return None
+    for a in (U_est, U):
+        if a.dtype != np.float64 or not a.flags.c_contiguous:
+            return None
+    R, K = U.shape
+    g = np.ascontiguousarray(np.broadcast_to(np.asarray(gain, float), (R,)))
+    out_gain, out_ls = np.empty(R), np.empty(R)
+    lib.hb_fitness(R, K, U_est, U, g, out_gain, out_ls, np.empty(3 * K))
+    return out_gain, out_ls
+
+
+@functools.cache
+def sums_are_numpys() -> bool:
+    """Whether the kernel of :func:`fitness` gives numpy's numbers here: its row sums follow
+    numpy's pairwise summation, which a numpy release may change. Checked once per process on
+    rows of many lengths and magnitudes with undefined samples; where it fails, the fitness is
+    computed by numpy on both backends. Independent of the backend switch."""
+    from hbench import metrics
+
+    rng = np.random.default_rng(12)
+    ok = True
+    for K in (1, 2, 7, 8, 9, 15, 16, 17, 127, 128, 129, 130, 255, 256, 257, 500, 1001, 4099):
+        U = rng.standard_normal((4, K)) * np.exp(rng.uniform(-30, 30, (4, K)))
+        U_est = 1.7 * U + rng.standard_normal((4, K)) * np.exp(rng.uniform(-30, 30, (4, K)))
+        U_est[1, : min(K, 3)] = np.nan
+        U_est[2] = np.nan
+        U[3, K // 2] = np.inf
+        gain = rng.uniform(0.5, 2.0, 4)
+        got = _fitness(U_est, U, gain)
+        want = metrics.fitnesses(U_est, U, ("gain", "ls"), gain, compiled=False)
+        if got is None:
+            return False
+        same = (np.array_equal(got[i], want[s], equal_nan=True) for i, s in enumerate(want))
+        ok = ok and all(same)
+    return bool(ok)
 
 
 def lfilter_rows(num: np.ndarray, den: np.ndarray, x: np.ndarray) -> np.ndarray | None:

@@ -46,10 +46,17 @@ def delta(z: np.ndarray) -> np.ndarray:
     return out
 
 
-def first_valid(z: np.ndarray) -> int:
-    """Index of the first sample that is defined (not nan) in every run of ``z``."""
-    bad = np.isnan(z).any(axis=0)
-    return int(np.argmin(bad)) if not bad.all() else z.shape[-1]
+def first_valid(z: np.ndarray, block: int = 64) -> int:
+    """Index of the first sample that is defined (not nan) in every run of ``z``.
+
+    Scans ``block`` samples at a time from the start (a record's undefined samples are its
+    first few), so a long record is not read to the end."""
+    N = z.shape[-1]
+    for t0 in range(0, N, block):
+        bad = np.isnan(z[..., t0 : t0 + block]).reshape(-1, min(block, N - t0)).any(axis=0)
+        if not bad.all():
+            return t0 + int(np.argmin(bad))
+    return N
 
 
 # --- denominator: quiet-phase regressions (eqs. 13-15, 19, 20) ---------------------------------
@@ -429,6 +436,19 @@ def phase_variances(dw: np.ndarray, p: int, shift: int, t_min: int) -> np.ndarra
     block = period_block(dw, p, k, shift, p)
     compiled = kernels.period_mean_squares(block)  # the same sums, term after term
     return compiled if compiled is not None else np.mean(np.square(block), axis=1)
+
+
+def filtered_phase_variances(
+    y: np.ndarray, a: np.ndarray, p: int, shift: int, t_min: int
+) -> np.ndarray:
+    """:func:`phase_variances` of ``delta(filtered_output(y, a))``; compiled, the kernel forms
+    neither ``w`` nor ``Delta w`` (the same numbers: the same operations in the same order)."""
+    k = common_periods(y, p, shift, t_min, p)
+    if k.size and int(k[-1] - k[0]) == k.size - 1:
+        compiled = kernels.filtered_phase_variances(y, a, p, int(k[0]) * p + shift + 1, k.size)
+        if compiled is not None:
+            return compiled
+    return phase_variances(delta(filtered_output(y, a)), p, shift, t_min)
 
 
 def b_lsm(

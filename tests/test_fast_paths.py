@@ -528,3 +528,36 @@ def test_iv_numerator_from_lagged_rows_equals_the_gathered_instruments(noisy, sh
 def test_simo_periods_are_those_of_the_simo_system(N, p, shift, t_min):
     sys = pp.simo_system(np.ones((2, N)), p, shift, t_min)
     assert pp.simo_periods(N, p, shift, t_min) == (sys.n0, sys.W.shape[1])
+
+
+@pytest.mark.parametrize("p", [1, 2, 3, 5, 8, 13])
+def test_cyclic_blocks_from_tables_are_the_computed_ones(p: int) -> None:
+    """The selection reads each shift's cyclic block and its last shift from tables built by
+    ``_blocks`` and ``_last_of_block`` (p <= 12; p = 13 computes them): the same values."""
+    from hbench.identifiers import _blocks, _last_of_block, _own_blocks
+
+    rng = np.random.default_rng(p)
+    q = rng.random((40, 3, p, p)) < rng.random((40, 3, p, 1))
+    own = np.einsum("rass->ras", q)
+    diag = np.arange(p)[None, None, :, None]
+    want = np.where(own, np.take_along_axis(_blocks(q), diag, axis=3)[..., 0], 0)
+    block, last = _own_blocks(q, own)
+    np.testing.assert_array_equal(block, want)
+    np.testing.assert_array_equal(last, _last_of_block(want, p))
+    assert block.dtype == want.dtype and last.dtype == _last_of_block(want, p).dtype
+
+
+def test_first_valid_scans_from_the_start_as_a_whole_scan_would() -> None:
+    from hbench import polyphase as pp
+
+    rng = np.random.default_rng(3)
+    for _ in range(500):
+        R, N = int(rng.integers(1, 5)), int(rng.integers(0, 200))
+        z = rng.standard_normal((R, N))
+        for r in range(R):
+            z[r, : int(rng.integers(0, N + 1)) if N else 0] = np.nan
+        if N and rng.random() < 0.3:
+            z[rng.integers(0, R), rng.integers(0, N, 4)] = np.nan
+        bad = np.isnan(z).any(axis=0)
+        whole = int(np.argmin(bad)) if not bad.all() else N
+        assert pp.first_valid(z) == whole == pp.first_valid(z, block=int(rng.integers(1, 9)))

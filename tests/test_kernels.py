@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from hbench import kernels, noise, scenarios
+from hbench import kernels, metrics, noise, scenarios
 from hbench import nonlinearities as nl
 from hbench import polyphase as pp
 from hbench.errors import InputError
@@ -56,6 +56,7 @@ def test_ci_has_the_compiled_kernels() -> None:
     assert BUILT, kernels.status()
     assert kernels.lapack_is_reference(), kernels.status()  # eq. (27) runs compiled in CI
     assert kernels.lfilter_is_scipys(), kernels.status()  # and lfilter
+    assert kernels.sums_are_numpys(), kernels.status()  # and the fitness
 
 
 @needs_build
@@ -144,6 +145,58 @@ def test_phase_variances_are_the_numpy_path(p: int, shift: int, t_min: int) -> N
     # numpy sums a single column pairwise, and strided columns are not the kernel's: numpy runs
     assert kernels.period_mean_squares(block[:, :, :1]) is None
     assert kernels.period_mean_squares(block[:, :, ::-1]) is None
+
+
+@needs_build
+@pytest.mark.parametrize(("p", "na", "shift"), [(2, 0, 1), (5, 2, 0), (5, 4, 4), (7, 3, 2)])
+def test_filtered_phase_variances_are_the_numpy_path(p: int, na: int, shift: int) -> None:
+    """Table 2's variances straight from y (the kernel forms neither w nor Delta w) are those of
+    the numpy lines, on samples of widely ranging size and with a run that holds a nan."""
+    rng = np.random.default_rng(10 * p + na)
+    y = rng.standard_normal((6, 3001)) * np.exp(rng.uniform(-15, 15, (6, 3001)))
+    y[2, 1500] = np.nan
+    a = np.concatenate([np.ones((6, 1)), rng.standard_normal((6, na))], axis=1)
+    for t_min in (na + 1, na + 4):
+        got = pp.filtered_phase_variances(y, a, p, shift, t_min)
+        with kernels.use("numpy"):
+            want = pp.filtered_phase_variances(y, a, p, shift, t_min)
+        np.testing.assert_array_equal(got, want)
+        np.testing.assert_array_equal(
+            want, pp.phase_variances(pp.delta(pp.filtered_output(y, a)), p, shift, t_min)
+        )
+        assert np.isnan(got[2]).any() and np.isfinite(np.delete(got, 2, axis=0)).all()
+    t0 = (na + 1) + p
+    assert kernels.filtered_phase_variances(y, a, p, t0, 10) is not None
+    # what the kernel does not take goes to numpy: p = 1 (numpy sums one column pairwise), a
+    # window reaching an undefined w, or past the record's end
+    assert kernels.filtered_phase_variances(y, a, 1, t0, 10) is None
+    assert kernels.filtered_phase_variances(y, a, p, na, 10) is None
+    assert kernels.filtered_phase_variances(y, a, p, t0, 3001) is None
+
+
+@needs_build
+@pytest.mark.parametrize("K", [1, 7, 8, 100, 128, 129, 500, 2049])
+def test_fitness_is_the_numpy_path(K: int) -> None:
+    """Row sums of every length class of numpy's pairwise summation (below 8, up to 128, split
+    in halves), widely ranging magnitudes, undefined samples, a run with none in common with
+    the truth and a constant truth: the kernel's fitness is numpy's, bit for bit."""
+    rng = np.random.default_rng(K)
+    U = rng.standard_normal((5, K)) * np.exp(rng.uniform(-20, 20, (5, K)))
+    U_est = 1.3 * U + rng.standard_normal((5, K)) * np.exp(rng.uniform(-20, 20, (5, K)))
+    U_est[1, : K // 3] = np.nan
+    U_est[2] = np.nan
+    U[3] = 2.5
+    gain = rng.uniform(0.5, 2.0, 5)
+    with np.errstate(all="ignore"):
+        got = metrics.fitnesses(U_est, U, ("gain", "ls"), gain)
+        want = metrics.fitnesses(U_est, U, ("gain", "ls"), gain, compiled=False)
+    for s in ("gain", "ls"):
+        np.testing.assert_array_equal(got[s], want[s])
+    assert kernels.fitness(U_est, U, gain) is not None
+    assert np.isnan(got["gain"][2]) and np.isnan(got["ls"][2])
+    # layouts numpy would sum in another order go to numpy
+    if K > 1:
+        assert kernels.fitness(np.asfortranarray(U_est), U, gain) is None
 
 
 @needs_build
@@ -385,18 +438,21 @@ def test_use_switches_the_backend_of_its_own_thread_only() -> None:
 def test_the_library_checks_do_not_read_the_backend_switch() -> None:
     """Asked first inside ``use("numpy")``, the once-per-process checks still answer for the
     build (a cached "no" would have kept eq. (27) and lfilter off the kernels for good)."""
-    kernels.lapack_is_reference.cache_clear()
-    kernels.lfilter_is_scipys.cache_clear()
+    checks = (kernels.lapack_is_reference, kernels.lfilter_is_scipys, kernels.sums_are_numpys)
+
+    def clear() -> None:
+        for check in checks:
+            check.cache_clear()
+
+    clear()
     try:
         with kernels.use("numpy"):
-            inside = (kernels.lapack_is_reference(), kernels.lfilter_is_scipys())
-        assert inside == (kernels.lapack_is_reference(), kernels.lfilter_is_scipys())
-        kernels.lapack_is_reference.cache_clear()
-        kernels.lfilter_is_scipys.cache_clear()
-        assert inside == (kernels.lapack_is_reference(), kernels.lfilter_is_scipys())
+            inside = tuple(check() for check in checks)
+        assert inside == tuple(check() for check in checks)
+        clear()
+        assert inside == tuple(check() for check in checks)
     finally:
-        kernels.lapack_is_reference.cache_clear()
-        kernels.lfilter_is_scipys.cache_clear()
+        clear()
 
 
 @needs_build
@@ -405,10 +461,13 @@ def test_libraries_that_compute_otherwise_keep_their_own_route(monkeypatch) -> N
     their build), the kernels decline and say so: both backends then take the library's route."""
     monkeypatch.setattr(kernels, "lapack_is_reference", lambda: False)
     monkeypatch.setattr(kernels, "lfilter_is_scipys", lambda: False)
+    monkeypatch.setattr(kernels, "sums_are_numpys", lambda: False)
     x = np.ones((2, 10))
+    assert kernels.fitness(x, x, 1.0) is None
     assert kernels.lfilter_rows(np.ones((2, 2)), np.array([[1.0, -0.5]] * 2), x) is None
     assert (
         kernels.inner_signal_ls(np.ones((2, 3, 2)), np.ones((3, 2), bool), x[:, :2], x[:, :2])
         is None
     )
     assert "eq. (27)" in kernels.status() and "lfilter" in kernels.status()
+    assert "fitness" in kernels.status()
