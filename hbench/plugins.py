@@ -8,6 +8,7 @@ block a broken plugin.
 from __future__ import annotations
 
 import os
+import sys
 from dataclasses import dataclass
 from functools import cache
 from types import ModuleType
@@ -69,8 +70,25 @@ def make_manager(load_entrypoints: bool = True) -> pluggy.PluginManager:
     for name in filter(None, os.environ.get("HBENCH_DISABLE_PLUGINS", "").split(",")):
         pm.set_blocked(name.strip())
     if load_entrypoints:
-        pm.load_setuptools_entrypoints("hbench")
+        _load_entrypoints(pm)
     return pm
+
+
+def _load_entrypoints(pm: pluggy.PluginManager) -> None:
+    """Every installed plugin, one entry point at a time: one that fails to import is skipped
+    with a one-line warning naming it (and the switch that silences it), so a broken
+    third-party package does not stop every command."""
+    from importlib import metadata
+
+    for name in sorted({ep.name for ep in metadata.entry_points(group="hbench")}):
+        try:
+            pm.load_setuptools_entrypoints("hbench", name=name)
+        except Exception as exc:  # an ImportError, or anything the plugin's import raises
+            msg = " ".join(f"{type(exc).__name__}: {exc}".split())
+            sys.stderr.write(
+                f"hbench: warning: plugin {name!r} failed to load ({msg}); skipped "
+                f"(HBENCH_DISABLE_PLUGINS={name} silences this)\n"
+            )
 
 
 @cache

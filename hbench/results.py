@@ -217,13 +217,18 @@ def git_revision(path: Path | None = None) -> str:
 def provenance(
     config: Mapping[str, Any] | None = None, seeds: Mapping[str, Any] | None = None
 ) -> dict[str, Any]:
-    """Package versions, git revision, platform, time, config and seeds."""
+    """Package versions (hbench's dependencies and every installed plugin's package), git
+    revision, platform, time, config and seeds."""
     versions = {}
     for pkg in ("hbench", "numpy", "scipy", "pandas", "pluggy", "hydra-core", "matplotlib"):
         try:
             versions[pkg] = metadata.version(pkg)
         except metadata.PackageNotFoundError:
             versions[pkg] = None
+    from hbench.plugins import get_manager
+
+    for _plugin, dist in get_manager().list_plugin_distinfo():  # the plugins' packages too
+        versions.setdefault(dist.project_name, dist.version)
     return {
         "hbench_version": versions["hbench"],
         "git_revision": git_revision(),

@@ -44,6 +44,8 @@ EXAMPLE = (
     "hbench sweep -m noise.snr=2,5,20 scenario.p=3,5,8 plant.delay=0,2,7 "
     "method=wang-lsm,bai-fu runs=20"
 )
+#: The config groups (a list value, ``group=[a,b]``, would merge their options).
+GROUPS = ("plant", "nonlinearity", "controller", "noise", "reference", "method", "experiment")
 #: Job markers and files.
 DONE = "DONE"
 ROWS = "rows.parquet"
@@ -191,12 +193,28 @@ def validate(overrides: Sequence[str], multirun: bool = False) -> int:
     fixed: dict[str, list[str]] = {}
     for o in parsed:
         key = o.get_key_element()
+        group = o.key_or_group in GROUPS
+        if group and not o.is_sweep_override() and isinstance(o.value(), list):
+            raise InputError(
+                f"override {o.input_line!r} would merge the options of the config group "
+                f"{o.key_or_group!r} into one (the last wins): sweep them with -m "
+                f"{o.key_or_group}=a,b"
+                + (
+                    ", or run several methods in one job with methods=[a,b]"
+                    if key == "method"
+                    else ""
+                )
+            )
         if o.is_sweep_override():
             if not multirun:
-                raise InputError(
-                    f"override {o.input_line!r} sweeps {o.key_or_group!r}: add -m "
-                    "(or write a list as key=[a,b])"
+                hint = (
+                    "add -m to sweep it (or run several methods in one job: methods=[a,b])"
+                    if key == "method"
+                    else "add -m to sweep it"
+                    if group
+                    else "add -m (or write a list as key=[a,b])"
                 )
+                raise InputError(f"override {o.input_line!r} sweeps {o.key_or_group!r}: {hint}")
             if not o.is_discrete_sweep():
                 raise InputError(
                     f"override {o.input_line!r}: the basic sweeper takes lists "
@@ -225,6 +243,7 @@ def validate(overrides: Sequence[str], multirun: bool = False) -> int:
         first = [v[0] for v in axes.values()]
         base = compose_checked(first)
         if not multirun:
+            _check_not_overwriting(base)
             return 1
         params = base.hydra.sweeper.get("params") or {}
         if params:  # config-defined sweeps; the command line wins for the same key
@@ -261,6 +280,32 @@ def validate(overrides: Sequence[str], multirun: bool = False) -> int:
         return n_jobs
 
 
+def _check_not_overwriting(cfg: Any) -> None:
+    """A single run into ``out=DIR`` that holds another config's finished run is refused
+    (results are never overwritten); the same config's finished run is skipped by the task."""
+    import json
+
+    from hbench import config
+
+    out = cfg.get("out")
+    if out is None:
+        return  # a fresh time-stamped folder under results/
+    marker = Path(str(out)) / DONE
+    if not marker.is_file():
+        return
+    try:
+        held = json.loads(marker.read_text())
+    except (OSError, ValueError):
+        held = {}
+    if held.get("run_id") != config.run_id(cfg):
+        what = ", ".join(held.get("methods") or []) or "unknown methods"
+        raise InputError(
+            f"out={out} holds the finished run of another config (run id "
+            f"{held.get('run_id', '?')}, {what}); results are never overwritten: choose another "
+            "out= or remove that folder"
+        )
+
+
 def check_config(cfg: Any, where: str = "") -> None:
     """Checks Hydra's composition cannot make: keys added with ``+``, the noise level, plugin
     names and parameters, methods and their options, the prior knowledge, the launcher."""
@@ -292,8 +337,9 @@ def check_config(cfg: Any, where: str = "") -> None:
             raise InputError(f"noise.{key}: must be a number or null, got {value!r}{where}")
     if noise.get("sigma2") is not None and noise.get("snr") is not None:
         raise InputError(
-            f"noise.sigma2 and noise.snr are both set{where}: give one "
-            "(noise.snr=X alone switches to SNR mode; or set the other to null)"
+            f"noise.sigma2 ({noise['sigma2']}) and noise.snr ({noise['snr']}) are both set"
+            f"{where}: give one (noise.snr=X alone switches to SNR mode; where a preset such "
+            "as experiment=paper_section6 fixes noise.sigma2, add noise.sigma2=null)"
         )
     for key, lo in (("runs", 1), ("chunk", 1), ("jobs", 1), ("seed", 0), ("scenario.p", 1)):
         value = OmegaConf.select(cfg, key)
@@ -482,6 +528,24 @@ def task(cfg: Any) -> None:
         count = f"; {len(list(root.rglob(DONE)))}{f'/{total}' if total else ''} jobs finished"
     note = f"; cell FAILED: {failure}" if failure else ""
     _say(f"{job} [{label}]: done in {time.perf_counter() - t0:.1f} s{count}{note}")
+    if not failure:
+        for line in without_estimates(rows):
+            _say(f"{job} [{label}]: WARNING {line}")
+
+
+def without_estimates(rows: Any) -> list[str]:
+    """One line per method of ``rows`` with no run ``ok``: its run statuses and first message
+    (such a method has no row in the fitness and bias tables, so the sweep says it here)."""
+    lines = []
+    for method, g in rows.groupby("method", sort=False, observed=True):
+        per_run = g.drop_duplicates("run")
+        if (per_run["status"] == "ok").any():
+            continue
+        counts = ", ".join(f"{k} {v}" for k, v in per_run["status"].value_counts().items())
+        first = next((str(e) for e in per_run["error"] if isinstance(e, str) and e), "")
+        why = f": {first}" if first else ""
+        lines.append(f"{method}: no estimate in {len(per_run)} runs ({counts}){why}")
+    return lines
 
 
 def compute(data: dict[str, Any], progress: Any = None) -> tuple[Any, dict[str, Any], str]:

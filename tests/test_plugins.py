@@ -235,3 +235,41 @@ def test_every_hookspec_has_an_implementation(hook: str) -> None:
 def test_hookspecs_are_the_registry_kinds() -> None:
     assert set(HOOKS) == set(KINDS.values())
     assert len(HOOKS) >= 8
+
+
+# --------------------------------------------------------------------------- a broken package
+
+
+@pytest.fixture
+def broken_package(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> str:
+    """An installed distribution whose ``hbench`` entry point cannot be imported."""
+    info = tmp_path / "hbench_broken_demo-0.0.1.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text(
+        "Metadata-Version: 2.1\nName: hbench-broken-demo\nVersion: 0.0.1\n"
+    )
+    (info / "entry_points.txt").write_text("[hbench]\nbroken-demo = hbench_no_such_module_xyz\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    return "broken-demo"
+
+
+def test_a_plugin_that_fails_to_import_is_skipped_with_a_warning(
+    broken_package: str, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    pm = make_manager()
+    err = capsys.readouterr().err
+    assert f"plugin {broken_package!r} failed to load" in err and "ModuleNotFoundError" in err
+    assert f"HBENCH_DISABLE_PLUGINS={broken_package}" in err and len(err.splitlines()) == 1
+    # every other plugin is still there
+    assert {"wang-lsm", "bai-fu", "oracle"} <= set(Registry(pm).names("identifiers"))
+    monkeypatch.setenv("HBENCH_DISABLE_PLUGINS", broken_package)
+    make_manager()
+    assert capsys.readouterr().err == ""
+
+
+def test_provenance_names_the_plugins_packages() -> None:
+    from hbench import results
+
+    versions = results.provenance()["versions"]
+    for _plugin, dist in get_manager().list_plugin_distinfo():
+        assert versions[dist.project_name] == dist.version

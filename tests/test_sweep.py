@@ -191,6 +191,9 @@ def test_a_raising_method_gives_failed_rows_and_the_sweep_goes_on(
     cells = set(zip(fitness["method"], fitness["p"], strict=True))
     assert cells == {("wang-lsm", 4), ("wang-lsm", 5), (boom, 5)}
     assert "1 method x cell pairs failed" in out
+    # the job says which method gave no estimate at all, and why
+    assert f"WARNING {boom}: no estimate in 5 runs (failed 5): RuntimeError: boom at p = 4" in err
+    assert "WARNING wang-lsm" not in err
 
 
 def test_a_failing_cell_gives_failed_rows_for_every_method(run_cli: RunCli, tmp_path: Path) -> None:
@@ -325,6 +328,7 @@ def test_same_seed_same_bits_under_basic_and_joblib(run_cli: RunCli, tmp_path: P
         (["+method_options.wang-lsm.poold=true"], "poold"),
         (["-m", "nonlinearity=backlash,stiction", "nonlinearity.d=0.2"], "nonlinearity.d"),
         (["hydra/launcher=slurm"], "slurm"),
+        (["method=[wang-lsm,bai-fu]"], "methods=[a,b]"),
     ],
 )
 def test_typo_exits_2_naming_the_key(
@@ -353,8 +357,37 @@ def test_typo_exits_2_from_the_console(tmp_path: Path) -> None:
 
 
 def test_both_noise_levels_is_an_input_error() -> None:
-    with pytest.raises(InputError, match=r"noise\.sigma2 and noise\.snr are both set"):
+    with pytest.raises(InputError, match=r"noise\.sigma2 \(0\.1\) and noise\.snr \(5.*both set"):
         validate(["noise.snr=5", "noise.sigma2=0.1"])
+    # a preset that fixes sigma2: the message says how to switch to the SNR
+    with pytest.raises(InputError, match=r"noise\.sigma2=null"):
+        validate(["experiment=paper_section6", "noise.snr=5"])
+    validate(["experiment=paper_section6", "noise.snr=5", "noise.sigma2=null"])
+
+
+@pytest.mark.parametrize("group", ["method", "nonlinearity"])
+def test_a_list_for_a_config_group_is_refused_not_merged(group: str) -> None:
+    """``method=[a,b]`` would merge the two options (only b's methods would run)."""
+    value = {"method": "[wang-lsm,bai-fu]", "nonlinearity": "[backlash,deadband]"}[group]
+    with pytest.raises(InputError, match=rf"-m {group}=a,b") as info:
+        validate([f"{group}={value}"])
+    assert ("methods=[a,b]" in str(info.value)) == (group == "method")
+    with pytest.raises(InputError, match=r"methods=\[a,b\]"):  # the sweep hint for 'method'
+        validate(["method=wang-lsm,bai-fu"])
+
+
+def test_a_single_run_never_overwrites_another_configs_results(
+    run_cli: RunCli, tmp_path: Path
+) -> None:
+    status, _, err = sweep(run_cli, tmp_path, "method=bai-fu", *SMALL, multirun=False)
+    assert status == 0, err
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()}
+    status, _, err = sweep(run_cli, tmp_path, "method=wang-lsm", *SMALL, multirun=False)
+    assert status == 2 and len(err.strip().splitlines()) == 1, err
+    assert "holds the finished run of another config" in err and "bai-fu" in err
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()} == before
+    status, _, err = sweep(run_cli, tmp_path, "method=bai-fu", *SMALL, multirun=False)
+    assert status == 0 and "already done" in err  # the same config: skipped, as in a sweep
 
 
 # --------------------------------------------------------------------------------------------
