@@ -130,23 +130,60 @@ def register() -> None:
         OmegaConf.register_new_resolver("hbench.run_id", _run_id_resolver)
 
 
+def _plain_defaults(factory: Any) -> dict[str, Any]:
+    """The keyword parameters of a plugin's factory (class or function) whose defaults are plain
+    config values, so that ``group.param=value`` overrides them as for the YAML options."""
+    import inspect
+
+    try:
+        params = inspect.signature(factory).parameters.values()
+    except (TypeError, ValueError):
+        return {}
+    plain = (bool, int, float, str, type(None))
+    out: dict[str, Any] = {}
+    for prm in params:
+        if prm.kind in (prm.VAR_POSITIONAL, prm.VAR_KEYWORD) or prm.default is prm.empty:
+            continue
+        value = prm.default
+        if isinstance(value, tuple | list) and all(isinstance(v, plain) for v in value):
+            value = list(value)
+        elif not isinstance(value, plain):
+            continue
+        out[prm.name] = value
+    return out
+
+
 def register_methods() -> list[str]:
-    """A ``method=<name>`` option (``methods: [<name>]``) for every registered identifier that
-    has no YAML file in ``conf/method`` (third-party plugins); returns their names."""
+    """A config option for every registered plugin that has no YAML file in its group's folder
+    (third-party plugins): ``method=<name>`` (``methods: [<name>]``), and ``nonlinearity=``,
+    ``plant=``, ``controller=``, ``noise=``, ``reference=<name>`` with the plugin's defaults
+    (``<group>.<param>=value`` sets a parameter; a noise model also gets the noise level keys).
+    Returns the names added as ``group=name``."""
     from hydra.core.config_store import ConfigStore
 
     from hbench.plugins import registry
 
-    have = {p.stem for p in (CONF_DIR / "method").glob("*.yaml")}
-    added = [n for n in registry().names("identifiers") if n not in have]
-    for name in added:
-        ConfigStore.instance().store(
-            group="method",
-            name=name,
-            node={"methods": [name]},
-            package="_global_",
-            provider="hbench",
-        )
+    added = []
+    for group, kind in {"method": "identifiers", **PLUGIN_GROUPS}.items():
+        have = {p.stem for p in (CONF_DIR / group).glob("*.yaml")}
+        for name in registry().names(kind):
+            if name in have:
+                continue
+            if group == "method":
+                node: dict[str, Any] = {"methods": [name]}
+            else:
+                node = {"name": name, **_plain_defaults(registry().get(kind, name))}
+                if group == "noise":  # as conf/noise/*.yaml: sigma2 unless snr is set
+                    node.update(sigma2="${hbench.unless:${.snr},0.001}", snr=None)
+            store = ConfigStore.instance()
+            store.store(
+                group=group,
+                name=name,
+                node=node,
+                package="_global_" if group == "method" else None,
+                provider="hbench",
+            )
+            added.append(f"{group}={name}")
     return added
 
 

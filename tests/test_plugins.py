@@ -273,3 +273,34 @@ def test_provenance_names_the_plugins_packages() -> None:
     versions = results.provenance()["versions"]
     for _plugin, dist in get_manager().list_plugin_distinfo():
         assert versions[dist.project_name] == dist.version
+
+
+def test_a_plugin_nonlinearity_and_plant_are_config_options(
+    run_cli: RunCli, example_plugin: ModuleType, tmp_path: Path
+) -> None:
+    """``nonlinearity=<plugin's name>`` and ``plant=<plugin's name>`` select them in a sweep,
+    with their factories' defaults as keys that overrides can set."""
+    import pandas as pd
+
+    status, _, err = run_cli(
+        [
+            "sweep",
+            "nonlinearity=quantizer",
+            "nonlinearity.q=0.1",
+            "plant=double-lag",
+            "plant.t1=3",
+            "method=wang-lsm",
+            "runs=2",
+            "scenario.duration=60",
+            f"out={tmp_path}",
+        ]
+    )
+    assert status == 0, err
+    cfg = (tmp_path / "config.yaml").read_text()
+    assert "name: quantizer" in cfg and "q: 0.1" in cfg
+    assert "name: double-lag" in cfg and "t1: 3" in cfg and "t2: 0.5" in cfg
+    rows = pd.read_parquet(tmp_path / "rows.parquet")
+    assert set(rows["nonlinearity"]) == {"quantizer"} and len(rows)
+    # a parameter the plugin does not take is a typo, as for the YAML options
+    status, _, err = run_cli(["sweep", "nonlinearity=quantizer", "nonlinearity.d=0.1"])
+    assert status == 2 and "nonlinearity.d" in err
