@@ -10,10 +10,14 @@ Output (default ``RUN_DIR/report/``, or a fresh ``RUN_DIR/report-<time>/`` if th
 self-contained ``report.html`` (figures embedded as base64 PNG data URIs, no external resources),
 the figures as PNG and PDF, and the tables as Markdown and LaTeX (booktabs): ``fitness``,
 ``bias`` (the contract's aggregation), ``ranking`` (mean rank of fitness per cell among the blind
-methods; oracles are bounds, not ranked), ``timing`` (seconds per run). Methods whose class is a
-reconstruction (``reconstruction = True``) are labelled so wherever they appear. When a method of
-the ``hbench_extensions`` plugin package ran, a section "Beyond the paper" follows the tables
-(:mod:`hbench.report_beyond`; its tables ``beyond_*`` are written beside the others).
+methods; oracles are bounds, not ranked), ``timing`` (seconds per run), and, when some run is
+not ``ok``, ``failures`` (:func:`failure_table`: per method and cell, how many runs failed or were
+not identifiable, and why). A table or figure with no data is replaced by a one-line note (the
+Markdown and LaTeX files of an empty table say why it is empty); when no run produced an estimate
+the page says so first. Methods whose class is a reconstruction (``reconstruction = True``) are
+labelled so wherever they appear. When a method of the ``hbench_extensions`` plugin package ran,
+a section "Beyond the paper" follows the tables (:mod:`hbench.report_beyond`; its tables
+``beyond_*`` are written beside the others).
 """
 
 from __future__ import annotations
@@ -24,7 +28,9 @@ import html
 import json
 import math
 import os
-from collections.abc import Mapping, Sequence
+import re
+from collections import Counter
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -180,7 +186,9 @@ def _num(v: Any) -> str:
 def _facet(df: Any) -> Any:
     """``"backlash, p=5, delay=3"`` per row (the panels of the fitness figure)."""
     if not len(df):
-        return df["method"].astype(str)
+        import pandas as pd
+
+        return pd.Series([], index=df.index, dtype=object)
     return (
         df["nonlinearity"].astype(str)
         + ", p="
@@ -250,7 +258,10 @@ def cell_stats(rows: Any) -> dict[str, Any]:
     )
     bias["bias"] = bias["mean"] - bias["true"]
     bias = bias.merge(snr.reset_index(), on=gkeys, how="left")
-    bias = bias[~bias["method"].map(lambda m: method_info(m)["oracle"])]  # true values: no error
+    # oracles know the true values: no error to show. The mask is boolean even when ``bias`` is
+    # empty (an empty object mask would select no *columns* and lose them).
+    oracle = bias["method"].map(lambda m: method_info(m)["oracle"]).astype(bool)
+    bias = bias.loc[~oracle]
     bias["facet"] = _facet(bias)
     multi = bias["facet"].nunique() > 1
     bias["series"] = bias["method"] + (" | " + bias["facet"] if multi else "")
@@ -279,6 +290,203 @@ def cell_stats(rows: Any) -> dict[str, Any]:
     return {"fitness": fitness, "bias": bias, "timing": timing, "ranking": ranking}
 
 
+#: The statuses of a run that produced no estimate, in the order the failures table shows them
+#: (other statuses met in the rows follow, sorted).
+NOT_OK = ("failed", "not-identifiable")
+#: The cell of a run, as the aggregated tables and the cell count key it.
+CELL_COLUMNS = ("nonlinearity", "p", "delay", "sigma2", "snr_target")
+
+
+def run_table(rows: Any) -> Any:
+    """One row per run and method (a run's status and error are the same in all its rows).
+
+    Parameters
+    ----------
+    rows : DataFrame
+        Tidy rows (:data:`hbench.schema.TIDY_COLUMNS`).
+
+    Returns
+    -------
+    DataFrame
+        The first row of each run (keyed by every identifier column present), missing statuses
+        as ``"(none)"``.
+    """
+    from hbench.schema import ID_COLUMNS
+
+    key = [c for c in ID_COLUMNS if c in rows.columns]
+    runs = rows.drop_duplicates(key).copy()
+    runs["status"] = runs["status"].astype(object).where(runs["status"].notna(), "(none)")
+    runs["status"] = runs["status"].astype(str)
+    return runs.reset_index(drop=True)
+
+
+def status_counts(rows: Any) -> dict[str, int]:
+    """Runs per status over all methods and cells.
+
+    Parameters
+    ----------
+    rows : DataFrame
+        Tidy rows (:data:`hbench.schema.TIDY_COLUMNS`).
+
+    Returns
+    -------
+    dict of str -> int
+        ``{status: runs}``, most frequent first (a run is one method on one realisation).
+    """
+    counts = run_table(rows)["status"].value_counts()
+    return {str(k): int(v) for k, v in counts.items()}
+
+
+def _message(error: Any, width: int) -> str:
+    """An error on one line, cut to ``width`` characters (``...`` marks a cut)."""
+    text = "" if error is None or (isinstance(error, float) and math.isnan(error)) else str(error)
+    text = " ".join(text.split()) or "(no message)"
+    return text if len(text) <= width else text[: max(width - 3, 1)] + "..."
+
+
+def failure_table(rows: Any, messages: int = 3, width: int = 200) -> Any:
+    """Per method and cell with a run that produced no estimate: the status counts and why.
+
+    Parameters
+    ----------
+    rows : DataFrame
+        Tidy rows (:data:`hbench.schema.TIDY_COLUMNS`).
+    messages : int
+        Distinct messages shown per method and cell, most frequent first (then in order of
+        appearance); the number of the others is given.
+    width : int
+        Characters kept of each message (a cut one ends in ``...``; the rows' ``error`` column
+        holds it whole).
+
+    Returns
+    -------
+    DataFrame
+        Columns ``method, nonlinearity, p, delay, sigma2, snr_target`` (``snr_target`` only if a
+        cell has one), ``runs``, ``ok``, one count column per status that is not ``ok``
+        (``failed``, ``not-identifiable``, then any other met), and ``messages``:
+        ``"<message> [<k> runs]; ..."`` from the runs' ``error`` column, ending in ``"(+<n> more
+        distinct messages)"`` when there are more than ``messages``. One row per (method, cell)
+        that has a run that is not ``ok``, methods and cells in order of appearance; empty
+        (same columns) when every run is ``ok``.
+    """
+    import pandas as pd
+
+    runs = run_table(rows)
+    for col in CELL_COLUMNS:
+        if col not in runs.columns:
+            runs[col] = math.nan
+    other = sorted(s for s in set(runs["status"]) if s != "ok" and s not in NOT_OK)
+    statuses = [*NOT_OK, *other]
+    cells = [c for c in CELL_COLUMNS if c != "snr_target" or runs["snr_target"].notna().any()]
+    columns = ["method", *cells, "runs", "ok", *statuses, "messages"]
+    # the level keyed as in cell_stats: sigma2 and snr_target, each missing as -1
+    runs["_s2"] = runs["sigma2"].astype(float).fillna(-1.0)
+    runs["_st"] = runs["snr_target"].astype(float).fillna(-1.0)
+    out = []
+    keys = ["method", "nonlinearity", "p", "delay", "_s2", "_st"]
+    for _, g in runs.groupby(keys, sort=False, dropna=False):
+        bad = g[g["status"] != "ok"]
+        if bad.empty:
+            continue
+        first = g.iloc[0]
+        counts = g["status"].value_counts()
+        # most frequent first; ties in order of appearance (most_common's sort is stable)
+        found = Counter(_message(e, width) for e in bad["error"]).most_common()
+        shown = [f"{m} [{k} run{'s' if k != 1 else ''}]" for m, k in found[:messages]]
+        if len(found) > messages:
+            shown.append(f"(+{len(found) - messages} more distinct messages)")
+        out.append(
+            {
+                **{c: first[c] for c in ("method", *cells)},
+                "runs": len(g),
+                "ok": int(counts.get("ok", 0)),
+                **{s: int(counts.get(s, 0)) for s in statuses},
+                "messages": "; ".join(shown),
+            }
+        )
+    return pd.DataFrame(out, columns=columns)
+
+
+# --------------------------------------------------------------------------- table files
+
+_TEX_SPECIAL = {
+    "\\": r"\textbackslash{}",
+    "_": r"\_",
+    "%": r"\%",
+    "&": r"\&",
+    "#": r"\#",
+    "$": r"\$",
+    "{": r"\{",
+    "}": r"\}",
+    "~": r"\textasciitilde{}",
+    "^": r"\textasciicircum{}",
+    "<": r"\textless{}",
+    ">": r"\textgreater{}",
+}
+
+
+def _tex_text(text: str, full: bool = True) -> str:
+    """``text`` on one line for LaTeX; ``full=False`` leaves ``_`` and ``%`` to
+    :func:`hbench.results.to_latex`, which escapes those in every cell."""
+    special = r"[\\&#${}~^<>_%]" if full else r"[\\&#${}~^<>]"
+    return re.sub(special, lambda m: _TEX_SPECIAL[m.group()], " ".join(text.split()))
+
+
+def _md_text(text: str) -> str:
+    """``text`` on one line for a Markdown table cell (``\\`` and ``|`` escaped)."""
+    return " ".join(text.split()).replace("\\", "\\\\").replace("|", r"\|")
+
+
+def _text_cells(table: Any, escape: Callable[[str], str]) -> Any:
+    """``table`` with ``escape`` applied to every text cell (numbers left alone)."""
+    import pandas as pd
+
+    out = table.copy()
+    for col in out.columns:
+        if out[col].dtype == object or pd.api.types.is_string_dtype(out[col].dtype):
+            out[col] = out[col].map(lambda v: escape(v) if isinstance(v, str) else v)
+    return out
+
+
+def write_table(
+    out: Path, name: str, table: Any, note: str = "", empty: str = "", wrap_last: bool = False
+) -> None:
+    """Write ``table`` as ``out/name.md`` and ``out/name.tex`` (booktabs).
+
+    Parameters
+    ----------
+    out : Path
+        The report folder.
+    name : str
+        Stem of the files (and the LaTeX caption ``hbench <name>``).
+    table : DataFrame
+        The table; its text cells are escaped for Markdown (``|``) and LaTeX.
+    note : str
+        A line written above the Markdown table and as a LaTeX comment above the table.
+    empty : str
+        Why the table has no rows: said above the Markdown table and in a row spanning the LaTeX
+        table, when ``table`` is empty.
+    wrap_last : bool
+        Let the last column's text wrap in LaTeX (a ``p`` column; long messages).
+    """
+    from hbench.results import to_latex, to_markdown
+
+    lines = [line for line in (note, empty if table.empty else "") if line]
+    md = to_markdown(_text_cells(table, _md_text))
+    (out / f"{name}.md").write_text("".join(f"{_md_text(line)}\n\n" for line in lines) + md)
+    tex = to_latex(_text_cells(table, lambda t: _tex_text(t, full=False)), caption=f"hbench {name}")
+    ncols = len(table.columns)
+    if wrap_last and ncols:
+        spec = "{" + "l" * ncols + "}"
+        tex = tex.replace(spec, "{" + "l" * (ncols - 1) + r"p{0.4\linewidth}}", 1)
+    if table.empty and empty:
+        span = rf"\multicolumn{{{ncols}}}{{p{{0.8\linewidth}}}}{{{_tex_text(empty)}}} \\"
+        tex = tex.replace("\\bottomrule", span + "\n\\bottomrule", 1)
+    if note:
+        tex = f"% {' '.join(note.split())}\n" + tex
+    (out / f"{name}.tex").write_text(tex)
+
+
 # --------------------------------------------------------------------------- HTML
 
 
@@ -297,6 +505,7 @@ figcaption{font-size:.85em;color:#444}
 pre{background:#f6f6f6;padding:.8em;overflow-x:auto;font-size:.78em;max-height:32em}
 .note{background:#fff8e0;border-left:4px solid #e0b000;padding:.4em .8em}
 .beyond{font-family:ui-monospace,Menlo,Consolas,monospace;font-size:.8em}
+#table-failures td:last-child{white-space:normal;text-align:left;min-width:24em}
 """
 
 
@@ -452,6 +661,37 @@ def _reproduction_html(run_dir: Path, out: Path) -> str:
     return "\n".join(parts)
 
 
+def _empty_reasons(none_ok: bool, status_line: str) -> dict[str, str]:
+    """Why each statistics table of the report may be empty (said where the table would be)."""
+    if none_ok:
+        why = (
+            f"No run produced an estimate (run status: {status_line}): this table is empty; "
+            "why, per method and cell: the failures table."
+        )
+        return dict.fromkeys(("fitness", "bias", "ranking", "timing"), why)
+    return {
+        "fitness": "No ok run has a fitness: this table is empty.",
+        "bias": "No ok run has parameter estimates (a1, a2, ..., b2, ...): this table is empty.",
+        "ranking": "No blind method has a fitness in any cell: nothing to rank (oracles are "
+        "bounds, not ranked).",
+        "timing": "No ok run has a time: this table is empty.",
+    }
+
+
+def _failures_note(none_ok: bool, status_line: str) -> str:
+    """The line above the failures table."""
+    head = (
+        f"No run produced an estimate (run status: {status_line})."
+        if none_ok
+        else f"Some runs produced no estimate (run status: {status_line})."
+    )
+    return (
+        f"{head} Per method and cell: the runs that failed (the method raised) or were not "
+        "identifiable, and their distinct messages (most frequent first, with their number of "
+        "runs; the error column of the tidy rows holds every message whole)."
+    )
+
+
 def build_report(
     run_dir: Path | str,
     out: Path | str | None = None,
@@ -467,7 +707,7 @@ def build_report(
     are rendered in the same batch (the reproduction's Figures 4 and 5).
     """
     from hbench import figures, report_beyond
-    from hbench.results import aggregate, new_output_dir, to_latex, to_markdown
+    from hbench.results import aggregate, new_output_dir
 
     run_dir = Path(run_dir)
     if rows is None:
@@ -485,59 +725,93 @@ def build_report(
     fitness_table, bias_table = aggregate(rows)
     ranking = stats["ranking"]
     timing = stats["timing"].rename(columns={"mean": "seconds_mean", "std": "seconds_std"})
-    for frame in (fitness_table, bias_table, ranking, timing):
+    failures = failure_table(rows)
+    for frame in (fitness_table, bias_table, ranking, timing, failures):
         frame.insert(0, "label", frame["method"].map(method_label))
+    counts = status_counts(rows)
+    status_line = ", ".join(f"{k} {v}" for k, v in counts.items())
+    none_ok = counts.get("ok", 0) == 0
     tables = {"fitness": fitness_table, "bias": bias_table, "ranking": ranking, "timing": timing}
+    if len(failures):
+        tables["failures"] = failures
+    empty = _empty_reasons(none_ok, status_line)
+    for name, table in tables.items():
+        note = _failures_note(none_ok, status_line) if name == "failures" else ""
+        write_table(
+            out, name, table, note=note, empty=empty.get(name, ""), wrap_last=name == "failures"
+        )
     beyond = report_beyond.plan(rows, out, _series_label)
-    for name, table in {**tables, **(beyond.tables if beyond else {})}.items():
-        (out / f"{name}.md").write_text(to_markdown(table))
-        (out / f"{name}.tex").write_text(to_latex(table, caption=f"hbench {name}"))
+    for name, table in (beyond.tables if beyond else {}).items():
+        write_table(out, name, table)
 
-    # (figure id, spec, caption); rendered together below
-    planned: list[tuple[str, Any, str]] = [
-        (
+    # the figures in page order: (figure id, spec, caption) to render, or a note when no data
+    planned: list[tuple[str, Any, str]] = []
+    slots: list[int | str] = []
+
+    def draw(fig_id: str, spec: Any, caption: str) -> None:
+        slots.append(len(planned))
+        planned.append((fig_id, spec, caption))
+
+    def skip(fig_id: str, what: str, reason: str) -> None:
+        why = "No run produced an estimate" if none_ok else reason
+        slots.append(f'<p class="note" id="no-{_esc(fig_id)}">{_esc(why)}: {_esc(what)}.</p>')
+
+    if stats["fitness"]["fitness_mean"].notna().any():
+        draw(
             "fig-fitness-snr",
             (out / "fitness_snr", "fitness_vs_snr", (stats["fitness"], method_label), {}),
             "Fitness (mean ± one std over runs) against the mean SNR of each cell, per method "
             "(noise-free cells, with infinite SNR, are not drawn).",
         )
-    ]
+    else:
+        skip("fig-fitness-snr", "no fitness against SNR to draw", "No ok run has a fitness")
     if len(stats["bias"]):
-        planned.append(
-            (
-                "fig-bias-std-snr",
-                (out / "bias_std_snr", "bias_std_vs_snr", (stats["bias"], _series_label), {}),
-                "Bias (mean − true) and standard deviation of each parameter against SNR "
-                "(b1 = 1 normalisation; parameters are dimensionless).",
-            )
+        draw(
+            "fig-bias-std-snr",
+            (out / "bias_std_snr", "bias_std_vs_snr", (stats["bias"], _series_label), {}),
+            "Bias (mean − true) and standard deviation of each parameter against SNR "
+            "(b1 = 1 normalisation; parameters are dimensionless).",
+        )
+    else:
+        skip(
+            "fig-bias-std-snr",
+            "no bias or std against SNR to draw",
+            "No ok run of a blind method has parameter estimates (oracles know the true values)",
         )
     examples = load_examples(run_dir)
     if examples:
-        planned.append(
-            (
-                "fig-xu",
-                (out / "xu", "xu_grid", (_pick_examples(examples), method_label), {}),
-                "x(n) against U(n), one realisation per nonlinearity: the true U, then each "
-                "method's estimate scaled by the true gain b1 (the fitness scaling).",
-            )
+        draw(
+            "fig-xu",
+            (out / "xu", "xu_grid", (_pick_examples(examples), method_label), {}),
+            "x(n) against U(n), one realisation per nonlinearity: the true U, then each "
+            "method's estimate scaled by the true gain b1 (the fitness scaling).",
+        )
+    else:
+        slots.append(
+            '<p class="note" id="no-examples">No examples.npz under this folder (sweeps do not '
+            "save signals): the x-U graphs per method are not drawn.</p>"
         )
     if len(stats["timing"]):
-        planned.append(
-            (
-                "fig-time",
-                (out / "time", "time_per_method", (stats["timing"], method_label), {}),
-                "Identification time per run (mean ± std over runs; a batch's time is shared "
-                "equally among its runs).",
-            )
+        draw(
+            "fig-time",
+            (out / "time", "time_per_method", (stats["timing"], method_label), {}),
+            "Identification time per run (mean ± std over runs; a batch's time is shared "
+            "equally among its runs).",
         )
+    else:
+        skip("fig-time", "no time per method to draw", "No ok run has a time")
     if len(ranking):
-        planned.append(
-            (
-                "fig-ranking",
-                (out / "ranking", "ranking", (ranking, method_label), {}),
-                "Mean rank of fitness per cell among the blind methods (1 = best; oracles are "
-                "bounds and are not ranked).",
-            )
+        draw(
+            "fig-ranking",
+            (out / "ranking", "ranking", (ranking, method_label), {}),
+            "Mean rank of fitness per cell among the blind methods (1 = best; oracles are "
+            "bounds and are not ranked).",
+        )
+    else:
+        skip(
+            "fig-ranking",
+            "no ranking to draw",
+            "No blind method has a fitness in any cell (oracles are bounds, not ranked)",
         )
     beyond_figures = beyond.figures if beyond else []
     pngs = figures.render_many(
@@ -545,15 +819,9 @@ def build_report(
     )
     pngs = pngs[len(extra_figures) :]
     figs = [
-        html_figure(fig_id, png, caption)
-        for (fig_id, _, caption), png in zip(planned, pngs[: len(planned)], strict=True)
+        html_figure(planned[s][0], pngs[s], planned[s][2]) if isinstance(s, int) else s
+        for s in slots
     ]
-    if not examples:
-        figs.insert(
-            2 if len(figs) >= 2 else len(figs),
-            '<p class="note" id="no-examples">No examples.npz under this folder (sweeps do not '
-            "save signals): the x-U graphs per method are not drawn.</p>",
-        )
 
     methods = list(dict.fromkeys(rows["method"]))
     recon = [m for m in methods if method_info(m)["reconstruction"]]
@@ -561,14 +829,17 @@ def build_report(
     intro = [
         f"<p>Source folder: <code>{_esc(run_dir)}</code> ({len(files)} rows file(s), "
         f"{len(rows)} tidy rows, {n_cells} cells, methods: "
-        f"{_esc(', '.join(method_label(m) for m in methods))}).</p>"
+        f"{_esc(', '.join(method_label(m) for m in methods))}).</p>",
+        "<p>Run status: " + _esc(status_line) + ".</p>",
     ]
-    status = rows.drop_duplicates(["cell", "method", "run", "sigma2", "snr_target"])[
-        "status"
-    ].value_counts()
-    intro.append(
-        "<p>Run status: " + _esc(", ".join(f"{k} {v}" for k, v in status.items())) + ".</p>"
-    )
+    if none_ok:
+        intro.append(
+            '<p class="note" id="no-estimates"><b>No run produced an estimate</b>: none of the '
+            f"{sum(counts.values())} runs ({_esc(status_line)}) of "
+            f"{_esc(', '.join(method_label(m) for m in methods))} has a fitness or parameter "
+            "estimates, so the figures and the statistics tables are empty. Why, per method "
+            "and cell: the table <i>Runs without an estimate</i> below.</p>"
+        )
     if recon:
         intro.append(
             '<p class="note">' + _esc(", ".join(recon)) + " is a reconstruction: "
@@ -576,6 +847,27 @@ def build_report(
             "own (see its docstring); read its numbers as those of a faithful variant."
             "</p>"
         )
+    if len(failures):
+        intro += [
+            '<section id="failures"><h2>Runs without an estimate</h2>',
+            f"<p>{_esc(_failures_note(none_ok, status_line))}</p>",
+            html_table(failures, table_id="table-failures"),
+            "</section>",
+        ]
+    table_titles = {
+        "ranking": "Ranking (mean rank of fitness per cell)",
+        "timing": "Time per method",
+        "fitness": "Fitness per cell (%)",
+        "bias": "Bias per parameter",
+    }
+    table_html = []
+    for name, title in table_titles.items():
+        table_html.append(f"<h3>{_esc(title)}</h3>")
+        if tables[name].empty:
+            table_html.append(f'<p class="note" id="no-table-{name}">{_esc(empty[name])}</p>')
+        else:
+            fmt = ".3g" if name in ("ranking", "timing") else ".4g"
+            table_html.append(html_table(tables[name], floatfmt=fmt, table_id=f"table-{name}"))
     prov = load_provenance(run_dir)
     page = [
         "<!DOCTYPE html>",
@@ -592,14 +884,7 @@ def build_report(
         "<p>Also written as Markdown and LaTeX (booktabs) files beside this page: "
         + _esc(", ".join(f"{n}.md, {n}.tex" for n in tables))
         + ".</p>",
-        "<h3>Ranking (mean rank of fitness per cell)</h3>",
-        html_table(ranking, floatfmt=".3g", table_id="table-ranking"),
-        "<h3>Time per method</h3>",
-        html_table(timing, floatfmt=".3g", table_id="table-timing"),
-        "<h3>Fitness per cell (%)</h3>",
-        html_table(fitness_table, table_id="table-fitness"),
-        "<h3>Bias per parameter</h3>",
-        html_table(bias_table, table_id="table-bias"),
+        *table_html,
         "</section>",
         beyond.html(pngs[len(planned) :]) if beyond else "",
         '<section id="provenance"><h2>Provenance</h2>',

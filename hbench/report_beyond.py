@@ -116,7 +116,8 @@ def delay_hit_rates(structure: pd.DataFrame, is_oracle: Callable[[str], bool]) -
     """
     cells = structure.loc[structure["method"] == DELAY_METHOD, CELL].drop_duplicates()
     s = structure.merge(cells, on=CELL)
-    s = s[~s["method"].map(is_oracle) & s["quantity"].isin(("delay", "tau"))]
+    # a boolean mask even when s is empty (an empty object mask would not combine with &)
+    s = s[~s["method"].map(is_oracle).astype(bool) & s["quantity"].isin(("delay", "tau"))]
     s = s.assign(hits=s["hit_rate"] * s["n"], snr_n=s["snr_mean"] * s["n"])
     keys = ["method", "nonlinearity", "p", results.LEVEL]
     g = (
