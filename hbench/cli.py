@@ -9,10 +9,79 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import os
 import sys
 from collections.abc import Sequence
+from pathlib import Path
+from typing import NoReturn
 
 from hbench.errors import InputError
+
+
+class Parser(argparse.ArgumentParser):
+    """An argument parser whose usage errors are one line on stderr, with exit status 2.
+
+    argparse prints the usage block before the error; the contract wants one line, so this
+    prints ``hbench CMD: error: MESSAGE (see 'hbench CMD --help')``. Subcommand parsers made
+    through ``add_subparsers`` are of the same class. ``--help`` is unchanged.
+    """
+
+    def error(self, message: str) -> NoReturn:
+        """Print ``message`` on one line with a pointer to ``--help``; exit with status 2.
+
+        Parameters
+        ----------
+        message : str
+            argparse's message.
+        """
+        msg = " ".join(message.split())
+        self.exit(2, f"{self.prog}: error: {msg} (see '{self.prog} --help')\n")
+
+
+def check_output(path: Path | str, option: str, folder: bool = False) -> Path:
+    """Refuse, before any work, an output path that cannot be written.
+
+    Nothing is created: the path must be writable as it is, or its nearest existing ancestor
+    must be a folder one can create entries in (commands create missing parent folders, as
+    ``reproduce --out`` and ``report --out`` do).
+
+    Parameters
+    ----------
+    path : path-like
+        The output file (or folder with ``folder=True``).
+    option : str
+        The option that named it (``"--json"``), for the message.
+    folder : bool, default False
+        Whether ``path`` is a folder to write files into.
+
+    Returns
+    -------
+    Path
+        ``path``.
+
+    Raises
+    ------
+    InputError
+        ``path`` is a folder where a file is wanted (or a file where a folder is wanted), is
+        not writable, or lies under a file or a folder one cannot write in.
+    """
+    path = Path(path)
+    where = f"{option} {path}"
+    if path.exists():
+        if path.is_dir() != folder:
+            what = "a file, not a folder" if folder else "a folder, not a file"
+            raise InputError(f"{where}: is {what}")
+        if not os.access(path, os.W_OK | (os.X_OK if folder else 0)):
+            raise InputError(f"{where}: not writable (permission denied)")
+        return path
+    ancestor = path.parent
+    while not ancestor.exists() and ancestor != ancestor.parent:
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        raise InputError(f"{where}: {ancestor} is not a folder")
+    if not os.access(ancestor, os.W_OK | os.X_OK):
+        raise InputError(f"{where}: cannot create it in {ancestor} (permission denied)")
+    return path
 
 
 def _cmd_plugins(args: argparse.Namespace) -> int:
@@ -66,6 +135,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     from hbench.readers import write_record
     from hbench.simulate import simulate
 
+    out = check_output(args.out, "--out")
     spec = copy.deepcopy(scenarios.PAPER_SECTION6)
     for item in args.set or []:
         if "=" not in item:
@@ -85,7 +155,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         scenarios.set_dotted(spec, key, value)
     scenario = scenarios.build(spec)
     record, truth = simulate(scenario, 1, np.random.default_rng(args.seed))
-    path = write_record(record, args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    path = write_record(record, out)
     print(
         f"wrote {path} ({record.n_fast} fast samples, p = {record.p}, h = {record.h:g} s, "
         f"SNR = {truth.snr[0]:.3g})",
@@ -95,7 +166,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="hbench",
         description="Blind identification of closed-loop Hammerstein systems: a benchmark suite.",
     )
@@ -151,11 +222,22 @@ COMMAND_MODULES: tuple[str, ...] = (
 )
 
 
+def _command_parser(parser: argparse.ArgumentParser, name: str | None) -> argparse.ArgumentParser:
+    """The parser of command ``name`` (``parser`` itself when there is none)."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction) and name in action.choices:
+            return action.choices[name]
+    return parser
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``hbench`` console script."""
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra:  # name the command in the message, as its own errors do
+        command = _command_parser(parser, getattr(args, "command", None))
+        command.error(f"unrecognized arguments: {' '.join(extra)}")
     if not getattr(args, "func", None):
         parser.print_help()
         return 0
@@ -168,6 +250,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     except FileNotFoundError as exc:
         print(f"hbench {args.command}: error: no such file: {exc.filename}", file=sys.stderr)
         return 2
+    except (IsADirectoryError, NotADirectoryError, PermissionError, FileExistsError) as exc:
+        if exc.filename is None:  # not about a path the user gave
+            raise
+        print(f"hbench {args.command}: error: {exc.filename}: {exc.strerror}", file=sys.stderr)
+        return 2
+    except BrokenPipeError:  # the reader went away (``hbench plugins | head``): stop quietly
+        devnull = os.open(os.devnull, os.O_WRONLY)  # no second error when stdout is flushed
+        os.dup2(devnull, sys.stdout.fileno())
+        return 141  # as a command killed by SIGPIPE
     except KeyboardInterrupt:  # pragma: no cover
         print("interrupted", file=sys.stderr)
         return 130

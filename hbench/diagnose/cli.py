@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from pathlib import Path
 
 import numpy as np
 
@@ -31,10 +30,36 @@ def _summary(d) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    """``hbench diagnose``: read the record, diagnose it, print and write the results.
+
+    The five-line summary goes to stdout, or to stderr when ``--json -`` puts the JSON on
+    stdout (which then holds nothing else). Output paths are checked before the work.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed command line (``record, p, json, out, method, fit_fraction,
+        delay_multiple``).
+
+    Returns
+    -------
+    int
+        The exit status, 0.
+
+    Raises
+    ------
+    InputError
+        A bad record, option or output path.
+    """
+    from hbench.cli import check_output
     from hbench.diagnose.validate import diagnose
     from hbench.plugins import registry
     from hbench.readers import read_record
 
+    to_stdout = args.json == "-"
+    info = sys.stderr if to_stdout else sys.stdout  # the human text: never mixed into the JSON
+    json_path = check_output(args.json, "--json") if args.json and not to_stdout else None
+    out_dir = check_output(args.out, "--out", folder=True) if args.out else None
     if args.p is not None and args.p < 1:
         raise InputError(f"--p must be a positive integer, got {args.p}")
     if args.delay_multiple < 0:
@@ -58,20 +83,18 @@ def run(args: argparse.Namespace) -> int:
             delay_multiple=args.delay_multiple,
         )
     out = d.as_json()
-    print(_summary(d))
+    print(_summary(d), file=info)
     if args.json:
         text = json.dumps(out, indent=2)
-        if args.json == "-":
+        if json_path is None:
             print(text)
         else:
-            path = Path(args.json)
-            if path.parent and not path.parent.exists():
-                path.parent.mkdir(parents=True, exist_ok=True)
-            path.write_text(text + "\n")
-            print(f"wrote {path}")
-    if args.out:
+            json_path.parent.mkdir(parents=True, exist_ok=True)
+            json_path.write_text(text + "\n")
+            print(f"wrote {json_path}", file=info)
+    if out_dir is not None:
         from hbench.diagnose.report import write_report
 
-        html, md = write_report(d, Path(args.out))
-        print(f"wrote {html} and {md}")
+        html, md = write_report(d, out_dir)
+        print(f"wrote {html} and {md}", file=info)
     return 0
