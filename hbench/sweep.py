@@ -242,6 +242,10 @@ def validate(overrides: Sequence[str], multirun: bool = False) -> int:
         axes = dict(fixed)
         first = [v[0] for v in axes.values()]
         base = compose_checked(first)
+        if base.get("out") is not None:  # a folder to write in (not a file, nor under one)
+            from hbench.cli import check_output
+
+            check_output(str(base.out), "out=", folder=True)
         if not multirun:
             _check_not_overwriting(base)
             return 1

@@ -376,6 +376,16 @@ def test_a_list_for_a_config_group_is_refused_not_merged(group: str) -> None:
         validate(["method=wang-lsm,bai-fu"])
 
 
+@pytest.mark.parametrize("multirun", [False, True])
+def test_an_out_that_is_a_file_exits_2(run_cli: RunCli, tmp_path: Path, multirun: bool) -> None:
+    afile = tmp_path / "afile"
+    afile.write_text("not a folder")
+    for out, said in ((afile, "is a file, not a folder"), (afile / "sub", "is not a folder")):
+        status, _, err = sweep(run_cli, out, "method=wang-lsm", *SMALL, multirun=multirun)
+        assert status == 2 and said in err and len(err.strip().splitlines()) == 1, err
+    assert afile.read_text() == "not a folder"
+
+
 def test_a_single_run_never_overwrites_another_configs_results(
     run_cli: RunCli, tmp_path: Path
 ) -> None:
