@@ -63,8 +63,8 @@ NONLINEARITY_CODES: dict[type[nl.Nonlinearity], tuple[int, tuple[str, ...]]] = {
 #: The actuator state's fields, in the columns the kernel reads and updates.
 _STATE = ("x_prev", "u_prev", "x_ss", "direction", "stuck")
 
-_F64 = np.ctypeslib.ndpointer(dtype=np.float64, flags="C_CONTIGUOUS")
-_U8 = np.ctypeslib.ndpointer(dtype=np.uint8, flags="C_CONTIGUOUS")
+_F64 = np.ctypeslib.ndpointer(dtype=np.float64, flags="C_CONTIGUOUS,ALIGNED")
+_U8 = np.ctypeslib.ndpointer(dtype=np.uint8, flags="C_CONTIGUOUS,ALIGNED")
 _I64 = ctypes.c_int64
 #: The backend :func:`use` asked for in this context (a context variable, so a thread's or
 #: task's ``use`` leaves the others alone); ``None``: ``HBENCH_KERNELS``.
@@ -176,7 +176,8 @@ def _compiled() -> ctypes.CDLL | None:
 
 
 def _f64(a: Any) -> np.ndarray:
-    return np.ascontiguousarray(a, dtype=np.float64)
+    """``a`` as C-ordered, aligned float64 (a copy only where it is not already)."""
+    return np.require(a, np.float64, ("C", "A"))
 
 
 def supports_loop(controller: Controller, nonlinearity: nl.Nonlinearity) -> bool:
@@ -316,8 +317,10 @@ def _fitness(
     lib = _library()[0]
     if lib is None or U_est.ndim != 2 or U.shape != U_est.shape or U.shape[1] < 1:
         return None
-    for a in (U_est, U):
-        if a.dtype != np.float64 or not a.flags.c_contiguous:
+    for a in (U_est, U):  # exactly ndarrays: a masked array or matrix keeps its own rules
+        if type(a) is not np.ndarray or a.dtype != np.float64 or not a.flags.c_contiguous:
+            return None
+        if not a.flags.aligned:
             return None
     R, K = U.shape
     g = np.ascontiguousarray(np.broadcast_to(np.asarray(gain, float), (R,)))

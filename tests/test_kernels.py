@@ -197,6 +197,12 @@ def test_fitness_is_the_numpy_path(K: int) -> None:
     # layouts numpy would sum in another order go to numpy
     if K > 1:
         assert kernels.fitness(np.asfortranarray(U_est), U, gain) is None
+    # a masked array keeps numpy's rules (its mask), and unaligned data is not the kernel's
+    masked = np.ma.array(U_est, mask=np.zeros_like(U_est, bool))
+    assert kernels.fitness(masked, U, gain) is None
+    raw = np.empty(U_est.size * 8 + 1, np.uint8)[1:].view(np.float64).reshape(U_est.shape)
+    raw[...] = U_est
+    assert kernels.fitness(raw, U, gain) is None
 
 
 @needs_build
