@@ -314,6 +314,10 @@ def instruments(
     return r[:, np.clip(idx, 0, r.shape[1] - 1)], ok
 
 
+#: Runs whose instruments are laid out and multiplied together (they stay in a core's cache).
+IV_BLOCK = 16
+
+
 def iv_moments(reg: QuietRegression, r: np.ndarray, m: int, lag0: int = 1) -> np.ndarray:
     """``(1/n) sum zeta [Delta y, phi^T]`` over the rows with every instrument defined.
 
@@ -322,24 +326,32 @@ def iv_moments(reg: QuietRegression, r: np.ndarray, m: int, lag0: int = 1) -> np
     product per phase. Returns ``(runs, m, na + 1)``.
     """
     p, na, K = reg.lm.p, reg.na, r.shape[1]
-    out = np.zeros((r.shape[0], m, na + 1))
+    R = r.shape[0]
+    out = np.zeros((R, m, na + 1))
     if K < m:  # no row has all its instruments
         return out
     lags = sliding_window_view(reg.dy, na + 1, axis=1)[..., ::-1]  # lags[:, t - na, i] = dy(t - i)
     periods = np.arange(reg.lm.k0, reg.lm.k1 + 1)
-    n = 0
+    phases = []  # (first instrument sample, first row's t, rows) per phase with rows
     for c, carry in reg.classes:
         k = periods - carry
         ok = (k - lag0 - m + 1 >= 0) & (k - lag0 < K)
-        if not ok.any():
-            continue
-        kk = periods[ok]
-        j0 = kk[0] - carry - lag0 - m + 1
-        t0 = kk[0] * p + c
-        ZT = _lagged_rows(r, j0 + m - 1, m, kk.size)  # zeta(k)^T of the rows, (R, m, n_c)
-        Y = lags[:, t0 - na : t0 - na + (kk.size - 1) * p + 1 : p]  # (R, n_c, na + 1)
-        out += _instrument_products(ZT, Y)
-        n += kk.size
+        if ok.any():
+            kk = periods[ok]
+            phases.append((int(kk[0] - carry - lag0), int(kk[0] * p + c), kk.size))
+    # a few runs at a time, so that their instruments and lags stay in cache between being laid
+    # out and multiplied; phases with the same instrument rows share them (a run's products,
+    # and their order of accumulation over the phases, are those of the whole batch at once)
+    for b0 in range(0, R, IV_BLOCK):
+        rb, lb, ob = r[b0 : b0 + IV_BLOCK], lags[b0 : b0 + IV_BLOCK], out[b0 : b0 + IV_BLOCK]
+        laid: dict[tuple[int, int], np.ndarray] = {}
+        for start, t0, size in phases:
+            ZT = laid.get((start, size))
+            if ZT is None:  # zeta(k)^T of the rows, (runs, m, n_c)
+                ZT = laid[start, size] = _lagged_rows(rb, start, m, size)
+            Y = lb[:, t0 - na : t0 - na + (size - 1) * p + 1 : p]  # (runs, n_c, na + 1)
+            ob += _instrument_products(ZT, Y)
+    n = sum(size for _, _, size in phases)
     out[:, :, 1:] *= -1.0
     return out / max(n, 1)
 
@@ -484,12 +496,16 @@ def b_iv(
     k = common_periods(dw, p, shift, t_min, nb)
     if k.size and int(k[-1] - k[0]) == k.size - 1:  # consecutive (as common_periods gives)
         k = k[(k - lag0 - m + 1 >= 0) & (k - lag0 < r.shape[1])]  # every instrument defined
-        ZT = _lagged_rows(r, int(k[0]) - lag0 if k.size else 0, m, k.size)
+        start, D = int(k[0]) - lag0 if k.size else 0, period_block(dw, p, k, shift, nb)
+        S = np.empty((dw.shape[0], m, nb))
+        for b0 in range(0, dw.shape[0], IV_BLOCK):  # a few runs at a time, as in iv_moments
+            ZT = _lagged_rows(r[b0 : b0 + IV_BLOCK], start, m, k.size)
+            S[b0 : b0 + IV_BLOCK] = _instrument_products(ZT, D[b0 : b0 + IV_BLOCK])
     else:
         Z, ok = instruments(r, k, m, lag0)
         k, ZT = k[ok], Z[:, ok].transpose(0, 2, 1)
-    # every (1/K) sum zeta dwl at once, (R, m, nb)
-    C = _instrument_products(ZT, period_block(dw, p, k, shift, nb)) / len(k)
+        S = _instrument_products(ZT, period_block(dw, p, k, shift, nb))
+    C = S / len(k)  # every (1/K) sum zeta dwl at once, (R, m, nb)
     g = C[:, :, 0]
     b = np.ones((dw.shape[0], nb))
     gg = np.einsum("rm,rm->r", g, g)

@@ -561,3 +561,27 @@ def test_first_valid_scans_from_the_start_as_a_whole_scan_would() -> None:
         bad = np.isnan(z).any(axis=0)
         whole = int(np.argmin(bad)) if not bad.all() else N
         assert pp.first_valid(z) == whole == pp.first_valid(z, block=int(rng.integers(1, 9)))
+
+
+@pytest.mark.parametrize("phases", [(5,), (3, 4, 5)])
+def test_iv_products_a_few_runs_at_a_time_are_the_whole_batchs(monkeypatch, phases):
+    """The IV's instruments are laid out and multiplied IV_BLOCK runs at a time (so they stay in
+    cache): every run's moments and numerator are those of one product over the whole batch, and
+    of the run alone, bit for bit (37 runs cross two block boundaries)."""
+    record, _ = sim(runs=37, seed=5, noise__sigma2=1e-3)
+    dy = pp.delta(record.y)
+    lm = pp.LagMoments(dy, 5, 5)
+    dw = pp.delta(pp.filtered_output(record.y, np.array([[1.0, -1.6, 0.64]] * 37)))
+    t_min = pp.first_valid(dw)
+
+    def both() -> tuple[np.ndarray, np.ndarray]:
+        reg = pp.quiet_regression(dy, 5, 2, phases, 3, moments=lm)
+        return pp.iv_moments(reg, record.r, 6), pp.b_iv(dw, record.r, 5, 2, 3, 6, t_min)
+
+    blocked = both()
+    monkeypatch.setattr(pp, "IV_BLOCK", 10**6)
+    whole = both()
+    for a, b in zip(blocked, whole, strict=True):
+        np.testing.assert_array_equal(a, b)
+    one = pp.quiet_regression(dy[20:21], 5, 2, phases, 3, moments=lm.take(np.array([20])))
+    np.testing.assert_array_equal(pp.iv_moments(one, record.r[20:21], 6), blocked[0][20:21])
