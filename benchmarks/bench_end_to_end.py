@@ -76,6 +76,23 @@ OLS's ~0.07 s, the IV's moments and numerator ~0.08 s (BLAS products over the ma
 instruments), eq. (27) ~0.05 s in all, ``A(q) y`` and ``Delta w`` in the final fits ~0.05 s, the
 fitness ~0.04 s, tidy rows ~0.03 s. Each remaining part is a few percent; the numbers that BLAS
 and LAPACK sum (the IV products, ``eigh``) cannot be mirrored bit for bit in C.
+
+Session 7 (2026-11-23), rows byte-identical throughout: Table 2's variances straight from y (one
+compiled pass, no ``w`` or ``Delta w`` formed); the fitness compiled with numpy's pairwise row sums
+(checked against numpy once per process); the kernels built with ``-O3`` (their loops over samples
+vectorise; no sum is reordered); the selection's cyclic blocks read from tables; the IV's
+instruments laid out and multiplied 16 runs at a time, so they stay in cache (``iv_moments``
+2.1x faster). Interleaved best-of-5 cells against the session's start (71fb6bf): 1448-1584
+against 1263-1398 runs/s in one process, 2148-2303 against 1654-2076 with ``jobs=2``. The CI run
+on 968b8f1 caught the machine in a slow phase (its 16-job sweep took 64 s against 50-55 s in
+faster runs): 1364 runs/s, 1560 with ``jobs=2``, the numpy path 693 (1.97x), unbatched 67x,
+dense 1481x, a 10 000-run cell 6.9 s at 0.35 GiB peak. Still dominating, ~0.65 s of CPU per 1000
+runs (cProfile): simulation ~0.2 s (Gaussian draws ~0.06 s, the compiled loop ~0.045 s), the
+structure selections ~0.2 s (``eigh`` pseudo-inverses ~0.045 s with numpy's wrappers ~0.03 s, the
+per-shift ``v' M v`` einsums ~0.02 s), the IV products ~0.06 s (half of it gathering the lags of
+``Delta y`` into BLAS's layout), ``A(q) y``/``Delta w``/SIMO blocks/eq. (27) in the final fits
+~0.1 s, the fitness ~0.03 s, tidy rows ~0.04 s (pyarrow's string ``take``). 3000 runs/s (~0.47 ms
+of CPU per run at this machine's 1.3-1.5x two-process scaling) is still not met.
 """
 
 from __future__ import annotations
