@@ -898,6 +898,10 @@ def build_report(
 
 
 def _cmd(args: argparse.Namespace) -> int:
+    from hbench.cli import check_output
+
+    if args.out:  # before any work: a folder one can write in
+        check_output(args.out, "--out", folder=True)
     jobs = max(1, min(2, len(os.sched_getaffinity(0))))
     path = build_report(Path(args.run_dir), Path(args.out) if args.out else None, jobs=jobs)
     print(path)

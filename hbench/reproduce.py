@@ -1558,8 +1558,11 @@ def reproduce(
 
 
 def _cmd(args: argparse.Namespace) -> int:
+    from hbench.cli import check_output
     from hbench.scenarios import parse_value
 
+    if args.out is not None:  # before any work: a folder one can write in
+        check_output(args.out, "--out", folder=True)
     overrides = []
     for item in args.set or []:
         if "=" not in item:

@@ -296,3 +296,15 @@ def test_a_closed_pipe_ends_quietly(monkeypatch: pytest.MonkeyPatch) -> None:
             stream.close()
         except OSError:
             pass
+
+
+@pytest.mark.parametrize("command", ["reproduce", "report"])
+def test_reproduce_and_report_check_out_before_any_work(
+    run_cli, tmp_path: Path, command: str
+) -> None:
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    argv = ["reproduce", "--runs", "2"] if command == "reproduce" else ["report", str(tmp_path)]
+    for out, said in ((afile, "is a file, not a folder"), (afile / "sub", "is not a folder")):
+        status, _, err = run_cli([*argv, "--out", str(out)])
+        assert status == 2 and said in err and len(err.strip().splitlines()) == 1, err
