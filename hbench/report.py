@@ -756,63 +756,67 @@ def build_report(
         why = "No run produced an estimate" if none_ok else reason
         slots.append(f'<p class="note" id="no-{_esc(fig_id)}">{_esc(why)}: {_esc(what)}.</p>')
 
-    if stats["fitness"]["fitness_mean"].notna().any():
-        draw(
+    # (has data, figure id, spec, caption, what is missing, why)
+    examples = load_examples(run_dir)
+    plan = [
+        (
+            stats["fitness"]["fitness_mean"].notna().any(),
             "fig-fitness-snr",
             (out / "fitness_snr", "fitness_vs_snr", (stats["fitness"], method_label), {}),
             "Fitness (mean ± one std over runs) against the mean SNR of each cell, per method "
             "(noise-free cells, with infinite SNR, are not drawn).",
-        )
-    else:
-        skip("fig-fitness-snr", "no fitness against SNR to draw", "No ok run has a fitness")
-    if len(stats["bias"]):
-        draw(
+            "no fitness against SNR to draw",
+            "No ok run has a fitness",
+        ),
+        (
+            len(stats["bias"]) > 0,
             "fig-bias-std-snr",
             (out / "bias_std_snr", "bias_std_vs_snr", (stats["bias"], _series_label), {}),
             "Bias (mean − true) and standard deviation of each parameter against SNR "
             "(b1 = 1 normalisation; parameters are dimensionless).",
-        )
-    else:
-        skip(
-            "fig-bias-std-snr",
             "no bias or std against SNR to draw",
             "No ok run of a blind method has parameter estimates (oracles know the true values)",
-        )
-    examples = load_examples(run_dir)
-    if examples:
-        draw(
+        ),
+        (
+            bool(examples),
             "fig-xu",
-            (out / "xu", "xu_grid", (_pick_examples(examples), method_label), {}),
+            (out / "xu", "xu_grid", (_pick_examples(examples), method_label), {})
+            if examples
+            else None,
             "x(n) against U(n), one realisation per nonlinearity: the true U, then each "
             "method's estimate scaled by the true gain b1 (the fitness scaling).",
-        )
-    else:
-        slots.append(
-            '<p class="note" id="no-examples">No examples.npz under this folder (sweeps do not '
-            "save signals): the x-U graphs per method are not drawn.</p>"
-        )
-    if len(stats["timing"]):
-        draw(
+            "",
+            "",
+        ),
+        (
+            len(stats["timing"]) > 0,
             "fig-time",
             (out / "time", "time_per_method", (stats["timing"], method_label), {}),
             "Identification time per run (mean ± std over runs; a batch's time is shared "
             "equally among its runs).",
-        )
-    else:
-        skip("fig-time", "no time per method to draw", "No ok run has a time")
-    if len(ranking):
-        draw(
+            "no time per method to draw",
+            "No ok run has a time",
+        ),
+        (
+            len(ranking) > 0,
             "fig-ranking",
             (out / "ranking", "ranking", (ranking, method_label), {}),
             "Mean rank of fitness per cell among the blind methods (1 = best; oracles are "
             "bounds and are not ranked).",
-        )
-    else:
-        skip(
-            "fig-ranking",
             "no ranking to draw",
             "No blind method has a fitness in any cell (oracles are bounds, not ranked)",
-        )
+        ),
+    ]
+    for has, fig_id, spec, caption, what, reason in plan:
+        if has:
+            draw(fig_id, spec, caption)
+        elif fig_id == "fig-xu":
+            slots.append(
+                '<p class="note" id="no-examples">No examples.npz under this folder (sweeps do '
+                "not save signals): the x-U graphs per method are not drawn.</p>"
+            )
+        else:
+            skip(fig_id, what, reason)
     beyond_figures = beyond.figures if beyond else []
     pngs = figures.render_many(
         [*extra_figures, *(p[1] for p in planned), *(f[1] for f in beyond_figures)], jobs
