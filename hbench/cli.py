@@ -66,7 +66,7 @@ def check_output(path: Path | str, option: str, folder: bool = False) -> Path:
         not writable, or lies under a file or a folder one cannot write in.
     """
     path = Path(path)
-    where = f"{option} {path}"
+    where = f"{option}{path}" if option.endswith("=") else f"{option} {path}"
     if path.exists():
         if path.is_dir() != folder:
             what = "a file, not a folder" if folder else "a folder, not a file"

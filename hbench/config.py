@@ -158,7 +158,12 @@ def register_methods() -> list[str]:
     (third-party plugins): ``method=<name>`` (``methods: [<name>]``), and ``nonlinearity=``,
     ``plant=``, ``controller=``, ``noise=``, ``reference=<name>`` with the plugin's defaults
     (``<group>.<param>=value`` sets a parameter; a noise model also gets the noise level keys).
-    Returns the names added as ``group=name``."""
+
+    Returns
+    -------
+    list of str
+        The options added, as ``group=name`` (stored in Hydra's ConfigStore; idempotent).
+    """
     from hydra.core.config_store import ConfigStore
 
     from hbench.plugins import registry

@@ -95,6 +95,7 @@ def _scalar_kind(annotation: Any) -> tuple[str | None, bool]:
 
 
 def _is_bool(value: Any) -> bool:
+    """Python's or numpy's boolean (never taken for a number)."""
     return type(value).__name__ in ("bool", "bool_")  # Python's and numpy's
 
 
@@ -107,8 +108,8 @@ def check_value(label: str, kind: str, value: Any, optional: bool = False) -> An
         The dotted key, for the message (``"plant.delay"``).
     kind : {"int", "float", "bool"}
         What the parameter takes. ``int``: an integer, an integer-valued float (``5.0``) or
-        its text; ``float``: a real number or its text (``"1e-3"``); ``bool``: a boolean. A
-        boolean is never taken for a number.
+        its text; ``float``: a real number or its text (``"1e-3"``); ``bool``: a boolean (or
+        the integer 0 or 1, YAML's flags). A boolean is never taken for a number.
     value : Any
         The value given.
     optional : bool, default False
@@ -131,6 +132,8 @@ def check_value(label: str, kind: str, value: Any, optional: bool = False) -> An
     if kind == "bool":
         if _is_bool(value):
             return bool(value)
+        if isinstance(value, numbers.Integral) and value in (0, 1):  # YAML's 0/1 flags
+            return bool(value)
         raise bad
     if value is None or _is_bool(value) or isinstance(value, Mapping | list | tuple | set):
         raise bad
@@ -150,6 +153,7 @@ def check_value(label: str, kind: str, value: Any, optional: bool = False) -> An
 
 
 def _is_number(value: Any) -> bool:
+    """A real number that is not a boolean."""
     return isinstance(value, numbers.Real) and not _is_bool(value)
 
 

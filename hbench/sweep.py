@@ -120,7 +120,11 @@ def run(args: argparse.Namespace) -> int:
             f"unknown option {bad[0]!r} (options: -m, --cfg, --resolve, --aggregate; "
             "everything else is a Hydra override key=value)"
         )
-    n_jobs = validate(overrides, multirun)
+    if args.cfg and multirun:
+        raise InputError(
+            "--cfg prints one job's config: drop -m (and give one value per key) to see it"
+        )
+    n_jobs = validate(overrides, multirun, launch=not args.cfg)
     argv = list(overrides)
     if multirun:
         argv.insert(0, "--multirun")
@@ -168,8 +172,10 @@ def _launch(argv: Sequence[str]) -> int:
 # --------------------------------------------------------------------------------------------
 
 
-def validate(overrides: Sequence[str], multirun: bool = False) -> int:
+def validate(overrides: Sequence[str], multirun: bool = False, launch: bool = True) -> int:
     """Compose the config with ``overrides`` and check it; return the number of jobs.
+
+    ``launch=False`` (``--cfg``: nothing runs) skips the checks of the output folder.
 
     With ``multirun``, sweeps (on the command line and in ``hydra.sweeper.params``) are expanded:
     every combination is checked when there are at most :data:`FULL_CHECK_MAX`, else every
@@ -194,7 +200,12 @@ def validate(overrides: Sequence[str], multirun: bool = False) -> int:
     for o in parsed:
         key = o.get_key_element()
         group = o.key_or_group in GROUPS
-        if group and not o.is_sweep_override() and isinstance(o.value(), list):
+        listed = (
+            any(v.lstrip().startswith("[") for v in o.sweep_string_iterator())
+            if o.is_sweep_override()
+            else isinstance(o.value(), list)
+        )
+        if group and listed:
             raise InputError(
                 f"override {o.input_line!r} would merge the options of the config group "
                 f"{o.key_or_group!r} into one (the last wins): sweep them with -m "
@@ -242,12 +253,17 @@ def validate(overrides: Sequence[str], multirun: bool = False) -> int:
         axes = dict(fixed)
         first = [v[0] for v in axes.values()]
         base = compose_checked(first)
-        if base.get("out") is not None:  # a folder to write in (not a file, nor under one)
+        if launch and base.get("out") is not None:  # a folder to write in, not a file
             from hbench.cli import check_output
 
+            if not str(base.out).strip():
+                raise InputError(
+                    "out= is empty: give a folder, or leave out= out (results/<time stamp>)"
+                )
             check_output(str(base.out), "out=", folder=True)
         if not multirun:
-            _check_not_overwriting(base)
+            if launch:
+                _check_not_overwriting(base)
             return 1
         params = base.hydra.sweeper.get("params") or {}
         if params:  # config-defined sweeps; the command line wins for the same key
@@ -285,15 +301,14 @@ def validate(overrides: Sequence[str], multirun: bool = False) -> int:
 
 
 def _check_not_overwriting(cfg: Any) -> None:
-    """A single run into ``out=DIR`` that holds another config's finished run is refused
-    (results are never overwritten); the same config's finished run is skipped by the task."""
+    """A single run into a folder (``out=DIR`` or ``hydra.run.dir=DIR``) that holds another
+    config's finished run is refused (results are never overwritten); the same config's
+    finished run is skipped by the task."""
     import json
 
     from hbench import config
 
-    out = cfg.get("out")
-    if out is None:
-        return  # a fresh time-stamped folder under results/
+    out = cfg.hydra.run.dir
     marker = Path(str(out)) / DONE
     if not marker.is_file():
         return
@@ -304,7 +319,7 @@ def _check_not_overwriting(cfg: Any) -> None:
     if held.get("run_id") != config.run_id(cfg):
         what = ", ".join(held.get("methods") or []) or "unknown methods"
         raise InputError(
-            f"out={out} holds the finished run of another config (run id "
+            f"{out} holds the finished run of another config (run id "
             f"{held.get('run_id', '?')}, {what}); results are never overwritten: choose another "
             "out= or remove that folder"
         )
@@ -502,8 +517,10 @@ def task(cfg: Any) -> None:
         _say(f"{job} [{label}]: already done ({done_in.name}), skipped")
         return
     marker = out / DONE
-    if marker.exists():  # a stale marker of another config: this job replaces it
-        marker.unlink()
+    if marker.exists():  # another config's marker (same run id: found done above)
+        if not multirun:  # validate refuses this before Hydra starts; never overwrite
+            raise InputError(f"{out} holds the finished run of another config")
+        marker.unlink()  # a job folder is named by its run id: a stale marker, replaced
     t0 = time.perf_counter()
 
     def progress(done: int, runs: int) -> None:
@@ -538,8 +555,19 @@ def task(cfg: Any) -> None:
 
 
 def without_estimates(rows: Any) -> list[str]:
-    """One line per method of ``rows`` with no run ``ok``: its run statuses and first message
-    (such a method has no row in the fitness and bias tables, so the sweep says it here)."""
+    """The methods of ``rows`` with no run ``ok``, which have no row in the fitness and bias
+    tables (so the sweep says it when the job ends).
+
+    Parameters
+    ----------
+    rows : DataFrame
+        Tidy rows of one job (:data:`hbench.schema.TIDY_COLUMNS`).
+
+    Returns
+    -------
+    list of str
+        One line per such method: its runs, their statuses and the first message.
+    """
     lines = []
     for method, g in rows.groupby("method", sort=False, observed=True):
         per_run = g.drop_duplicates("run")

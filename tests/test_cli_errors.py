@@ -7,11 +7,13 @@ for a file, a path under a file) and argparse's own errors each give one line
 
 from __future__ import annotations
 
+import copy
 import json
 import os
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from hbench import cli, scenarios
@@ -308,3 +310,23 @@ def test_reproduce_and_report_check_out_before_any_work(
     for out, said in ((afile, "is a file, not a folder"), (afile / "sub", "is not a folder")):
         status, _, err = run_cli([*argv, "--out", str(out)])
         assert status == 2 and said in err and len(err.strip().splitlines()) == 1, err
+
+
+@pytest.mark.parametrize(
+    ("key", "value"),
+    [
+        ("p", np.int64(5)),
+        ("T", np.float64(0.6)),
+        ("T", 1),  # an int for a float
+        ("reference.per_run", 1),  # YAML's 0/1 flags
+        ("reference.per_run", np.bool_(True)),
+        ("reference.band", np.array([0.0, 0.3])),
+        ("plant.delay", None),  # optional: delay_s then
+    ],
+)
+def test_valid_values_of_every_kind_are_still_taken(key: str, value: object) -> None:
+    """The type checks refuse bad values only: numpy scalars, ints for floats, 0/1 flags,
+    arrays for number lists and None where a parameter is optional are taken as before."""
+    spec = copy.deepcopy(scenarios.PAPER_SECTION6)
+    scenarios.set_dotted(spec, key, value)
+    scenarios.build(spec)

@@ -365,6 +365,18 @@ def test_both_noise_levels_is_an_input_error() -> None:
     validate(["experiment=paper_section6", "noise.snr=5", "noise.sigma2=null"])
 
 
+def test_a_list_inside_a_sweep_of_a_group_is_refused_too() -> None:
+    with pytest.raises(InputError, match="would merge"):
+        validate(["method=[wang-lsm,bai-fu],wang-iv"], multirun=True)
+
+
+def test_cfg_with_m_and_an_empty_out_exit_2(run_cli: RunCli, tmp_path: Path) -> None:
+    status, _, err = run_cli(["sweep", "-m", "--cfg", "job", "scenario.p=3,5"])
+    assert status == 2 and "drop -m" in err and len(err.strip().splitlines()) == 1, err
+    status, _, err = run_cli(["sweep", "out=", "runs=2"])
+    assert status == 2 and "out= is empty" in err and len(err.strip().splitlines()) == 1, err
+
+
 @pytest.mark.parametrize("group", ["method", "nonlinearity"])
 def test_a_list_for_a_config_group_is_refused_not_merged(group: str) -> None:
     """``method=[a,b]`` would merge the two options (only b's methods would run)."""
@@ -398,6 +410,13 @@ def test_a_single_run_never_overwrites_another_configs_results(
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()} == before
     status, _, err = sweep(run_cli, tmp_path, "method=bai-fu", *SMALL, multirun=False)
     assert status == 0 and "already done" in err  # the same config: skipped, as in a sweep
+    # Hydra's own run folder is held to the same rule, and --cfg (nothing runs) is not refused
+    argv = ["sweep", "method=wang-lsm", *SMALL, f"hydra.run.dir={tmp_path}"]
+    status, _, err = run_cli(argv)
+    assert status == 2 and "holds the finished run of another config" in err, err
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()} == before
+    status, out, err = run_cli(["sweep", "--cfg", "job", "method=wang-lsm", f"out={tmp_path}"])
+    assert status == 0 and "wang-lsm" in out, err
 
 
 # --------------------------------------------------------------------------------------------
