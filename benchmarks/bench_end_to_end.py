@@ -86,7 +86,9 @@ instruments laid out and multiplied 16 runs at a time, so they stay in cache (``
 against 1263-1398 runs/s in one process, 2148-2303 against 1654-2076 with ``jobs=2``. The CI run
 on 968b8f1 caught the machine in a slow phase (its 16-job sweep took 64 s against 50-55 s in
 faster runs): 1364 runs/s, 1560 with ``jobs=2``, the numpy path 693 (1.97x), unbatched 67x,
-dense 1481x, a 10 000-run cell 6.9 s at 0.35 GiB peak. Still dominating, ~0.65 s of CPU per 1000
+dense 1481x, a 10 000-run cell 6.9 s at 0.35 GiB peak; the CI run on 96805df: 1730 runs/s,
+2424 with ``jobs=2`` (1.40x), the numpy path 948 (1.83x), unbatched 67x, dense 1531x, a 10 000-run
+cell 6.2 s at 0.35 GiB, ``hbench reproduce`` 5.6-5.8 s. Still dominating, ~0.65 s of CPU per 1000
 runs (cProfile): simulation ~0.2 s (Gaussian draws ~0.06 s, the compiled loop ~0.045 s), the
 structure selections ~0.2 s (``eigh`` pseudo-inverses ~0.045 s with numpy's wrappers ~0.03 s, the
 per-shift ``v' M v`` einsums ~0.02 s), the IV products ~0.06 s (half of it gathering the lags of
