@@ -88,7 +88,9 @@ on 968b8f1 caught the machine in a slow phase (its 16-job sweep took 64 s agains
 faster runs): 1364 runs/s, 1560 with ``jobs=2``, the numpy path 693 (1.97x), unbatched 67x,
 dense 1481x, a 10 000-run cell 6.9 s at 0.35 GiB peak; the CI run on 96805df: 1730 runs/s,
 2424 with ``jobs=2`` (1.40x), the numpy path 948 (1.83x), unbatched 67x, dense 1531x, a 10 000-run
-cell 6.2 s at 0.35 GiB, ``hbench reproduce`` 5.6-5.8 s. Still dominating, ~0.65 s of CPU per 1000
+cell 6.2 s at 0.35 GiB, ``hbench reproduce`` 5.6-5.8 s; on 647a6c0: 1406 and 2390 runs/s, the
+numpy path 882 (1.60x), unbatched 63x, dense 1467x, the 10 000-run cell 7.4 s, reproduce 6.0 s.
+Still dominating, ~0.65 s of CPU per 1000
 runs (cProfile): simulation ~0.2 s (Gaussian draws ~0.06 s, the compiled loop ~0.045 s), the
 structure selections ~0.2 s (``eigh`` pseudo-inverses ~0.045 s with numpy's wrappers ~0.03 s, the
 per-shift ``v' M v`` einsums ~0.02 s), the IV products ~0.06 s (half of it gathering the lags of

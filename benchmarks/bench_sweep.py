@@ -2,9 +2,10 @@
 
 Run with ``.venv/bin/pytest benchmarks --benchmark-only -k bench_sweep``. The joblib case records
 ``speedup`` = basic time / joblib time (the fastest of :data:`ROUNDS` rounds each) in
-``extra_info``. Each job is heavy enough (the paper's 500 s record, 4 methods, 2000 runs: about
-4 s of work; 600 runs took 4 s before session 5's speed-ups and 2 s after, 1000 runs 2 s after
-session 6's, when CI measured 1.29x) that the per-job Hydra overhead (~0.4 s, paid by both
+``extra_info``. Each job is heavy enough (the paper's 500 s record, 4 methods, 3000 runs: about
+5 s of work; 600 runs took 4 s before session 5's speed-ups and 2 s after, 1000 runs 2 s after
+session 6's, when CI measured 1.29x; 2000 runs gave 1.35-1.57x in session 7's CI runs, after its
+speed-ups) that the per-job Hydra overhead (~0.4 s, paid by both
 launchers) and the start-up of the worker processes (~3 s, joblib only) do not dominate: two
 processes run ~1.45x as fast as one on this 2-vCPU machine, so with 16 x 2 s of work the start-up
 alone holds joblib near 1.3x. The whole ``hbench sweep`` command is timed in a fresh process,
@@ -38,7 +39,7 @@ SWEEP = (
     "plant.delay=2,7",
     "nonlinearity=backlash,stiction",
     "methods=[wang-lsm,wang-iv,bai-fu,sun-liu-sano]",
-    "runs=2000",
+    "runs=3000",
 )
 LAUNCHERS = {
     "basic": (),
