@@ -744,19 +744,11 @@ def build_report(
     for name, table in (beyond.tables if beyond else {}).items():
         write_table(out, name, table)
 
-    # the figures in page order: (figure id, spec, caption) to render, or a note when no data
-    planned: list[tuple[str, Any, str]] = []
-    slots: list[int | str] = []
-
-    def draw(fig_id: str, spec: Any, caption: str) -> None:
-        slots.append(len(planned))
-        planned.append((fig_id, spec, caption))
-
-    def skip(fig_id: str, what: str, reason: str) -> None:
+    def missing(fig_id: str, what: str, reason: str) -> str:
         why = "No run produced an estimate" if none_ok else reason
-        slots.append(f'<p class="note" id="no-{_esc(fig_id)}">{_esc(why)}: {_esc(what)}.</p>')
+        return f'<p class="note" id="no-{_esc(fig_id)}">{_esc(why)}: {_esc(what)}.</p>'
 
-    # (has data, figure id, spec, caption, what is missing, why)
+    # the figures in page order: (has data, figure id, spec, caption, the note shown without)
     examples = load_examples(run_dir)
     plan = [
         (
@@ -765,8 +757,7 @@ def build_report(
             (out / "fitness_snr", "fitness_vs_snr", (stats["fitness"], method_label), {}),
             "Fitness (mean ± one std over runs) against the mean SNR of each cell, per method "
             "(noise-free cells, with infinite SNR, are not drawn).",
-            "no fitness against SNR to draw",
-            "No ok run has a fitness",
+            missing("fig-fitness-snr", "no fitness against SNR to draw", "No ok run has a fitness"),
         ),
         (
             len(stats["bias"]) > 0,
@@ -774,19 +765,21 @@ def build_report(
             (out / "bias_std_snr", "bias_std_vs_snr", (stats["bias"], _series_label), {}),
             "Bias (mean − true) and standard deviation of each parameter against SNR "
             "(b1 = 1 normalisation; parameters are dimensionless).",
-            "no bias or std against SNR to draw",
-            "No ok run of a blind method has parameter estimates (oracles know the true values)",
+            missing(
+                "fig-bias-std-snr",
+                "no bias or std against SNR to draw",
+                "No ok run of a blind method has parameter estimates (oracles know the true "
+                "values)",
+            ),
         ),
         (
             bool(examples),
             "fig-xu",
-            (out / "xu", "xu_grid", (_pick_examples(examples), method_label), {})
-            if examples
-            else None,
+            (out / "xu", "xu_grid", (_pick_examples(examples), method_label), {}),
             "x(n) against U(n), one realisation per nonlinearity: the true U, then each "
             "method's estimate scaled by the true gain b1 (the fitness scaling).",
-            "",
-            "",
+            '<p class="note" id="no-examples">No examples.npz under this folder (sweeps do not '
+            "save signals): the x-U graphs per method are not drawn.</p>",
         ),
         (
             len(stats["timing"]) > 0,
@@ -794,8 +787,7 @@ def build_report(
             (out / "time", "time_per_method", (stats["timing"], method_label), {}),
             "Identification time per run (mean ± std over runs; a batch's time is shared "
             "equally among its runs).",
-            "no time per method to draw",
-            "No ok run has a time",
+            missing("fig-time", "no time per method to draw", "No ok run has a time"),
         ),
         (
             len(ranking) > 0,
@@ -803,20 +795,21 @@ def build_report(
             (out / "ranking", "ranking", (ranking, method_label), {}),
             "Mean rank of fitness per cell among the blind methods (1 = best; oracles are "
             "bounds and are not ranked).",
-            "no ranking to draw",
-            "No blind method has a fitness in any cell (oracles are bounds, not ranked)",
+            missing(
+                "fig-ranking",
+                "no ranking to draw",
+                "No blind method has a fitness in any cell (oracles are bounds, not ranked)",
+            ),
         ),
     ]
-    for has, fig_id, spec, caption, what, reason in plan:
+    planned: list[tuple[str, Any, str]] = []  # rendered together below
+    slots: list[int | str] = []  # in page order: an index into planned, or the note instead
+    for has, fig_id, spec, caption, note in plan:
         if has:
-            draw(fig_id, spec, caption)
-        elif fig_id == "fig-xu":
-            slots.append(
-                '<p class="note" id="no-examples">No examples.npz under this folder (sweeps do '
-                "not save signals): the x-U graphs per method are not drawn.</p>"
-            )
+            slots.append(len(planned))
+            planned.append((fig_id, spec, caption))
         else:
-            skip(fig_id, what, reason)
+            slots.append(note)
     beyond_figures = beyond.figures if beyond else []
     pngs = figures.render_many(
         [*extra_figures, *(p[1] for p in planned), *(f[1] for f in beyond_figures)], jobs
