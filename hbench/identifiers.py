@@ -341,6 +341,11 @@ def _block_tables(p: int) -> tuple[np.ndarray, np.ndarray]:
     return blocks, last
 
 
+def _last_shift(mask: np.ndarray, p: int) -> np.ndarray:
+    """:func:`_last_of_block`, read from its table where there is one (p <= 12)."""
+    return _block_tables(p)[1][mask] if p <= _TABLE_P else _last_of_block(mask, p)
+
+
 def _own_blocks(q: np.ndarray, own: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(block, last)``: for each row ``s`` of ``q`` (..., p, p) where ``own``, the mask of the
     cyclic run of True containing position ``s`` (else 0), and the last shift of that mask."""
@@ -348,11 +353,10 @@ def _own_blocks(q: np.ndarray, own: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     if p > _TABLE_P:
         diag = np.arange(p)[None, None, :, None]
         block = np.where(own, np.take_along_axis(_blocks(q), diag, axis=3)[..., 0], 0)
-        return block, _last_of_block(block, p)
-    blocks, last = _block_tables(p)
-    pattern = np.where(q, 1 << np.arange(p), 0).sum(axis=-1)
-    block = np.where(own, blocks[pattern, np.arange(p)], 0)
-    return block, last[block]
+    else:
+        pattern = np.where(q, 1 << np.arange(p), 0).sum(axis=-1)
+        block = np.where(own, _block_tables(p)[0][pattern, np.arange(p)], 0)
+    return block, _last_shift(block, p)
 
 
 def _select_common_a(
@@ -396,8 +400,7 @@ def _select_common_a(
     ok = eligible & (lev_o <= (1 + rule.tol_na) * best + floor[:, None])
     ia = np.argmax(ok, axis=1)
     na = na_values[ia]
-    blk = blk_o[np.arange(R), ia]
-    tau = _block_tables(p)[1][blk] if p <= _TABLE_P else _last_of_block(blk, p)
+    tau = _last_shift(blk_o[np.arange(R), ia], p)
     none = ~ok.any(axis=1)
     if none.any():  # nothing explains itself: fall back to the paper's table
         V = np.einsum("rass->ras", C[none])
