@@ -44,8 +44,6 @@ EXAMPLE = (
     "hbench sweep -m noise.snr=2,5,20 scenario.p=3,5,8 plant.delay=0,2,7 "
     "method=wang-lsm,bai-fu runs=20"
 )
-#: The config groups (a list value, ``group=[a,b]``, would merge their options).
-GROUPS = ("plant", "nonlinearity", "controller", "noise", "reference", "method", "experiment")
 #: Job markers and files.
 DONE = "DONE"
 ROWS = "rows.parquet"
@@ -191,6 +189,8 @@ def validate(overrides: Sequence[str], multirun: bool = False, launch: bool = Tr
     from hbench import config
 
     config.register_methods()
+    # the config groups (conf/'s folders): a list value (group=[a,b]) would merge their options
+    groups = {d.name for d in config.CONF_DIR.iterdir() if d.is_dir()}
     parser = OverridesParser.create()
     try:
         parsed = parser.parse_overrides(list(overrides))
@@ -199,7 +199,7 @@ def validate(overrides: Sequence[str], multirun: bool = False, launch: bool = Tr
     fixed: dict[str, list[str]] = {}
     for o in parsed:
         key = o.get_key_element()
-        group = o.key_or_group in GROUPS
+        group = o.key_or_group in groups
         listed = (
             any(v.lstrip().startswith("[") for v in o.sweep_string_iterator())
             if o.is_sweep_override()
