@@ -566,17 +566,19 @@ def without_estimates(rows: Any) -> list[str]:
     Returns
     -------
     list of str
-        One line per such method: its runs, their statuses and the first message.
+        One line per such method and cell: its runs, their statuses and messages, from the
+        report's :func:`hbench.report.failure_table`.
     """
+    from hbench.report import failure_table
+
+    table = failure_table(rows)
+    statuses = list(table.columns[table.columns.get_loc("ok") + 1 : -1])  # failed, ...
     lines = []
-    for method, g in rows.groupby("method", sort=False, observed=True):
-        per_run = g.drop_duplicates("run")
-        if (per_run["status"] == "ok").any():
-            continue
-        counts = ", ".join(f"{k} {v}" for k, v in per_run["status"].value_counts().items())
-        first = next((str(e) for e in per_run["error"] if isinstance(e, str) and e), "")
-        why = f": {first}" if first else ""
-        lines.append(f"{method}: no estimate in {len(per_run)} runs ({counts}){why}")
+    for row in table[table["ok"] == 0].to_dict("records"):
+        counts = ", ".join(f"{s} {row[s]}" for s in statuses if row[s])
+        lines.append(
+            f"{row['method']}: no estimate in {row['runs']} runs ({counts}): {row['messages']}"
+        )
     return lines
 
 
