@@ -290,9 +290,9 @@ def build(spec: Mapping[str, Any]) -> Scenario:
         parts[part] = make(kind, spec[part], label=part)
     return Scenario(
         **parts,
-        T=check_value("T", "float", spec.get("T", 0.6)),
+        T=float(check_value("T", "float", spec.get("T", 0.6))),
         p=check_value("p", "int", spec.get("p", 5)),
-        duration=check_value("duration", "float", spec.get("duration", 500.0)),
+        duration=float(check_value("duration", "float", spec.get("duration", 500.0))),
         sigma2=level.get("sigma2"),
         snr=level.get("snr"),
         name=str(spec.get("name", "scenario")),

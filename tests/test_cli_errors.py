@@ -330,3 +330,11 @@ def test_valid_values_of_every_kind_are_still_taken(key: str, value: object) -> 
     spec = copy.deepcopy(scenarios.PAPER_SECTION6)
     scenarios.set_dotted(spec, key, value)
     scenarios.build(spec)
+
+
+def test_the_scenarios_periods_are_floats_whatever_number_gave_them() -> None:
+    """``T`` and ``duration`` are floats in the scenario, as before the checks (``T=1``)."""
+    spec = copy.deepcopy(scenarios.PAPER_SECTION6)
+    spec.update(T=1, duration=np.int64(60))
+    sc = scenarios.build(spec)
+    assert type(sc.T) is float and type(sc.duration) is float and type(sc.p) is int
