@@ -137,7 +137,7 @@ def status() -> str:
     """One line for people: which path runs and why."""
     b = backend()
     if b == "c":
-        scipy_runs = [
+        own_route = [
             what
             for what, same in (
                 ("eq. (27) (this LAPACK's dptsv)", lapack_is_reference()),
@@ -146,10 +146,10 @@ def status() -> str:
             )
             if not same
         ]
-        if scipy_runs:  # fused multiply-adds in the libraries: their own routes keep both equal
+        if own_route:  # fused multiply-adds in the libraries: their own routes keep both equal
             return (
                 "compiled kernels (hbench._kernels); numpy/scipy for "
-                + ", ".join(scipy_runs)
+                + ", ".join(own_route)
                 + ", which compute otherwise than the kernels"
             )
         return "compiled kernels (hbench._kernels)"
@@ -338,7 +338,6 @@ def sums_are_numpys() -> bool:
     from hbench import metrics
 
     rng = np.random.default_rng(12)
-    ok = True
     for K in (1, 2, 7, 8, 9, 15, 16, 17, 127, 128, 129, 130, 255, 256, 257, 500, 1001, 4099):
         U = rng.standard_normal((4, K)) * np.exp(rng.uniform(-30, 30, (4, K)))
         U_est = 1.7 * U + rng.standard_normal((4, K)) * np.exp(rng.uniform(-30, 30, (4, K)))
@@ -350,9 +349,10 @@ def sums_are_numpys() -> bool:
         want = metrics.fitnesses(U_est, U, ("gain", "ls"), gain, compiled=False)
         if got is None:
             return False
-        same = (np.array_equal(got[i], want[s], equal_nan=True) for i, s in enumerate(want))
-        ok = ok and all(same)
-    return bool(ok)
+        pairs = zip(got, want.values(), strict=True)
+        if not all(np.array_equal(g, w, equal_nan=True) for g, w in pairs):
+            return False
+    return True
 
 
 def lfilter_rows(num: np.ndarray, den: np.ndarray, x: np.ndarray) -> np.ndarray | None:
