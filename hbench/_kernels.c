@@ -243,13 +243,6 @@ HB_EXPORT void hb_period_mean_squares(int64_t R, int64_t n, int64_t p, int64_t w
     }
 }
 
-/*
- * Table 2's variances of Delta w, w = A(q) y, without forming w (identifiers.select_structure:
- * polyphase.filtered_phase_variances): out[r, l] = (1/n) sum_j dw(t0 + j p + l)^2 for
- * l = 0 .. p-1, j = 0 .. n-1, where w(t) = a0 y(t) + a1 y(t-1) + .. + a_na y(t - na) summed in
- * that order (hb_filtered_output's) and dw(t) = w(t) - w(t-1) (polyphase.delta's); the sums are
- * hb_period_mean_squares'. t0 - 1 >= na (every w defined), t0 + n p <= N. y has row stride N.
- */
 /* acc[l] += sq[i + l] for l < p, period after period from i to m (each sum in order) */
 static inline __attribute__((always_inline)) void add_periods(double *restrict acc,
                                                               const double *restrict sq,
@@ -262,6 +255,13 @@ static inline __attribute__((always_inline)) void add_periods(double *restrict a
     for (int64_t l = 0; l < p; l++) acc[l] = s[l];
 }
 
+/*
+ * Table 2's variances of Delta w, w = A(q) y, without forming w (identifiers.select_structure:
+ * polyphase.filtered_phase_variances): out[r, l] = (1/n) sum_j dw(t0 + j p + l)^2 for
+ * l = 0 .. p-1, j = 0 .. n-1, where w(t) = a0 y(t) + a1 y(t-1) + .. + a_na y(t - na) summed in
+ * that order (hb_filtered_output's) and dw(t) = w(t) - w(t-1) (polyphase.delta's); the sums are
+ * hb_period_mean_squares'. t0 - 1 >= na (every w defined), t0 + n p <= N. y has row stride N.
+ */
 HB_EXPORT void hb_filtered_phase_variances(int64_t R, int64_t N, int64_t na, const double *a,
                                            const double *y, int64_t p, int64_t t0, int64_t n,
                                            double *out)
