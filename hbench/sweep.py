@@ -253,14 +253,15 @@ def validate(overrides: Sequence[str], multirun: bool = False, launch: bool = Tr
         axes = dict(fixed)
         first = [v[0] for v in axes.values()]
         base = compose_checked(first)
-        if launch and base.get("out") is not None:  # a folder to write in, not a file
+        if launch:  # Hydra's resolved output folder (out=, hydra.run.dir=, hydra.sweep.dir=)
             from hbench.cli import check_output
 
-            if not str(base.out).strip():
+            if base.get("out") is not None and not str(base.out).strip():
                 raise InputError(
                     "out= is empty: give a folder, or leave out= out (results/<time stamp>)"
                 )
-            check_output(str(base.out), "out=", folder=True)
+            folder = base.hydra.sweep.dir if multirun else base.hydra.run.dir
+            check_output(str(folder), "output folder ", folder=True)
         if not multirun:
             if launch:
                 _check_not_overwriting(base)

@@ -395,6 +395,10 @@ def test_an_out_that_is_a_file_exits_2(run_cli: RunCli, tmp_path: Path, multirun
     for out, said in ((afile, "is a file, not a folder"), (afile / "sub", "is not a folder")):
         status, _, err = sweep(run_cli, out, "method=wang-lsm", *SMALL, multirun=multirun)
         assert status == 2 and said in err and len(err.strip().splitlines()) == 1, err
+    # Hydra's own folder keys are held to the same rule
+    key = "hydra.sweep.dir" if multirun else "hydra.run.dir"
+    status, _, err = run_cli(["sweep", *(["-m"] if multirun else []), "runs=2", f"{key}={afile}"])
+    assert status == 2 and "is a file, not a folder" in err, err
     assert afile.read_text() == "not a folder"
 
 
