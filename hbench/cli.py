@@ -132,10 +132,11 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     import numpy as np
 
     from hbench import scenarios
-    from hbench.readers import write_record
+    from hbench.readers import writable_kind, write_record
     from hbench.simulate import simulate
 
     out = check_output(args.out, "--out")
+    writable_kind(out)  # before the simulation, not after it
     spec = copy.deepcopy(scenarios.PAPER_SECTION6)
     for item in args.set or []:
         if "=" not in item:

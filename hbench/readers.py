@@ -732,6 +732,24 @@ def read_record(
     raise RecordError(f"{path}: unsupported record format; supported: {formats}")
 
 
+def writable_kind(path: Path | str) -> str:
+    """The table kind :func:`write_record` writes at ``path`` (``csv``, ``tsv`` or ``parquet``).
+
+    Raises
+    ------
+    RecordError
+        For a suffix it cannot write, naming those it can (callers check before any work).
+    """
+    path = Path(path)
+    kind = _TABLE_SUFFIXES.get(path.suffix.lower())
+    if kind is None:
+        raise RecordError(
+            f"{path}: cannot write a record as {path.suffix or 'a file without suffix'!r}; "
+            f"use {', '.join(_TABLE_SUFFIXES)}"
+        )
+    return kind
+
+
 def write_record(record: Record, path: Path | str) -> Path:
     """Write a one-run record as a table (``t, x, y`` and ``r`` if present) at the fast rate.
 
@@ -753,12 +771,7 @@ def write_record(record: Record, path: Path | str) -> Path:
         ``path``.
     """
     path = Path(path)
-    kind = _TABLE_SUFFIXES.get(path.suffix.lower())
-    if kind is None:
-        raise RecordError(
-            f"{path}: cannot write a record as {path.suffix or 'a file without suffix'!r}; "
-            f"use {', '.join(_TABLE_SUFFIXES)}"
-        )
+    kind = writable_kind(path)
     if record.runs != 1:
         raise RecordError(
             f"write_record writes one run, the record has {record.runs}: use record.select([i])"

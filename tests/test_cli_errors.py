@@ -133,6 +133,24 @@ def test_simulate_bad_output_path(
         assert word in line
 
 
+def test_simulate_unwritable_suffix_is_refused_before_simulating(
+    run_cli: RunCli, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``--out x.txt`` is refused before any simulation work (it was refused only after it)."""
+    import hbench.simulate
+
+    def no_simulation(*args: object, **kwargs: object) -> None:
+        raise AssertionError("simulate() ran before the output suffix was checked")
+
+    monkeypatch.setattr(hbench.simulate, "simulate", no_simulation)
+    status, stdout, stderr = run_cli(["simulate", "--out", str(tmp_path / "x.txt")])
+    assert status == 2
+    assert stdout == ""
+    line = _one_line_error(stderr, "simulate")
+    assert "'.txt'" in line and ".csv" in line
+    assert not (tmp_path / "x.txt").exists()
+
+
 def test_path_errors_of_a_command_are_one_line(
     run_cli: RunCli, monkeypatch: pytest.MonkeyPatch
 ) -> None:
