@@ -74,7 +74,8 @@ def fitnesses(
     out = {}
     for scaling in scalings:
         if scaling == "gain":
-            us = e / np.broadcast_to(np.asarray(gain, float), (U.shape[0],))[:, None]
+            with np.errstate(invalid="ignore", divide="ignore"):  # gain 0: -inf, as compiled
+                us = e / np.broadcast_to(np.asarray(gain, float), (U.shape[0],))[:, None]
         elif scaling == "ls":
             with np.errstate(invalid="ignore", divide="ignore"):
                 c = np.sum(e * u, axis=1) / np.sum(e * e, axis=1)

@@ -205,6 +205,19 @@ def test_fitness_is_the_numpy_path(K: int) -> None:
     assert kernels.fitness(raw, U, gain) is None
 
 
+@pytest.mark.parametrize("compiled", [True, False])
+def test_fitness_of_a_zero_gain_is_silent_on_both_paths(compiled: bool) -> None:
+    """A zero true gain gives the same non-finite fitness on both paths and no warning from
+    either (numpy's path warned 'divide by zero', the compiled one did not)."""
+    U = np.sin(np.arange(40.0))[None, :].repeat(2, axis=0)
+    gain = np.array([0.0, 1.0])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        got = metrics.fitnesses(U.copy(), U, ("gain", "ls"), gain, compiled=compiled)
+    assert not np.isfinite(got["gain"][0]) and got["gain"][1] == 100.0
+    np.testing.assert_array_equal(got["ls"], [100.0, 100.0])
+
+
 @needs_build
 @pytest.mark.parametrize(("n_num", "n_den"), [(1, 2), (3, 2), (2, 4), (5, 3)])
 def test_batched_lfilter_is_scipys(n_num: int, n_den: int) -> None:
