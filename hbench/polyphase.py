@@ -330,7 +330,6 @@ def iv_moments(reg: QuietRegression, r: np.ndarray, m: int, lag0: int = 1) -> np
     out = np.zeros((R, m, na + 1))
     if K < m:  # no row has all its instruments
         return out
-    lags = sliding_window_view(reg.dy, na + 1, axis=1)[..., ::-1]  # lags[:, t - na, i] = dy(t - i)
     periods = np.arange(reg.lm.k0, reg.lm.k1 + 1)
     phases = []  # (first instrument sample, first row's t, rows) per phase with rows
     for c, carry in reg.classes:
@@ -343,34 +342,37 @@ def iv_moments(reg: QuietRegression, r: np.ndarray, m: int, lag0: int = 1) -> np
     # out and multiplied; phases with the same instrument rows share them (a run's products,
     # and their order of accumulation over the phases, are those of the whole batch at once)
     for b0 in range(0, R, IV_BLOCK):
-        rb, lb, ob = r[b0 : b0 + IV_BLOCK], lags[b0 : b0 + IV_BLOCK], out[b0 : b0 + IV_BLOCK]
+        rb, db, ob = r[b0 : b0 + IV_BLOCK], reg.dy[b0 : b0 + IV_BLOCK], out[b0 : b0 + IV_BLOCK]
         laid: dict[tuple[int, int], np.ndarray] = {}
         for start, t0, size in phases:
             ZT = laid.get((start, size))
             if ZT is None:  # zeta(k)^T of the rows, (runs, m, n_c)
                 ZT = laid[start, size] = _lagged_rows(rb, start, m, size)
-            Y = lb[:, t0 - na : t0 - na + (size - 1) * p + 1 : p]  # (runs, n_c, na + 1)
-            ob += _instrument_products(ZT, Y)
+            # the lags of Delta y of the rows, laid out like zeta^T: (runs, na + 1, n_c)
+            lagged = _lagged_rows(db, t0, na + 1, size, p)
+            ob += _instrument_products(ZT, lagged.transpose(0, 2, 1))
     n = sum(size for _, _, size in phases)
     out[:, :, 1:] *= -1.0
     return out / max(n, 1)
 
 
-def _lagged_rows(r: np.ndarray, start: int, m: int, n: int) -> np.ndarray:
-    """``out[:, i, j] = r[:, start - i + j]``, ``(R, m, n)`` in C order: the instruments of ``n``
-    consecutive rows, transposed, copied lag by lag (slices, no gather)."""
+def _lagged_rows(r: np.ndarray, start: int, m: int, n: int, step: int = 1) -> np.ndarray:
+    """``out[:, i, j] = r[:, start - i + j step]``, ``(R, m, n)`` in C order: ``m`` lags of ``n``
+    rows ``step`` samples apart, transposed, copied lag by lag (slices, no gather)."""
     out = np.empty((r.shape[0], m, n))
     for i in range(m):
-        out[:, i, :] = r[:, start - i : start - i + n]
+        out[:, i, :] = r[:, start - i : start - i + (n - 1) * step + 1 : step]
     return out
 
 
 def _instrument_products(ZT: np.ndarray, Y: np.ndarray) -> np.ndarray:
     """``sum_j ZT[:, :, j] Y[:, j]^T`` per run: ``(R, m, q)`` from ``(R, m, n)`` and ``(R, n, q)``.
 
-    One batched product of C-ordered operands: the same BLAS call for every run whatever the
-    batch, so a run's numbers do not depend on the runs batched with it."""
-    return np.matmul(np.ascontiguousarray(ZT), np.ascontiguousarray(Y))
+    One batched product; ``Y`` is the transpose of a C-ordered ``(R, q, n)`` array (numpy hands
+    it to BLAS as such, without a copy). Every run's operands have the same layout whatever the
+    batch, so each run's product is the same BLAS call and its numbers do not depend on the
+    runs batched with it."""
+    return np.matmul(np.ascontiguousarray(ZT), Y)
 
 
 def iv(reg: QuietRegression, r: np.ndarray, m: int, lag0: int = 1) -> np.ndarray:
