@@ -15,7 +15,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import NoReturn
 
-from hbench.errors import InputError
+from hbench.errors import InputError, MethodError
 
 
 class Parser(argparse.ArgumentParser):
@@ -248,6 +248,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         msg = " ".join(str(exc).split())
         print(f"hbench {args.command}: error: {msg}", file=sys.stderr)
         return 2
+    except MethodError as exc:  # a plugin broke its interface: internal, but not ours to trace
+        msg = " ".join(str(exc).split())
+        print(f"hbench {args.command}: error: {msg}", file=sys.stderr)
+        return 1
     except FileNotFoundError as exc:
         print(f"hbench {args.command}: error: no such file: {exc.filename}", file=sys.stderr)
         return 2

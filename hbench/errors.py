@@ -1,8 +1,11 @@
-"""Exceptions that the command line maps to exit statuses.
+"""Exceptions that the command line maps to exit statuses, and their one-line descriptions.
 
 ``InputError`` (and its subclasses) mean bad input or configuration: the command line prints its
-message on one line and exits with status 2. Anything else is an internal error (status 1).
+message on one line and exits with status 2. ``MethodError`` (a plugin that broke its interface)
+is printed on one line with status 1. Anything else is an internal error (status 1, traceback).
 """
+
+import traceback
 
 
 class InputError(ValueError):
@@ -22,3 +25,24 @@ class PluginNotFoundError(InputError, KeyError):
 
 class UnstableError(InputError):
     """An unstable plant, controller or closed loop; the message says which."""
+
+
+class MethodError(RuntimeError):
+    """A method (an identifier plugin) broke its interface: it returned something that is not
+    a valid :class:`hbench.identifiers.Estimate` for the record, or raised where the command
+    line calls it directly. The message names the method. Not bad input: the command line
+    prints it on one line and exits with status 1; a benchmark cell records failed rows for
+    that method only."""
+
+
+def describe(exc: BaseException) -> str:
+    """One line for a method's exception: its type, message and the file and line that raised
+    it (a :class:`MethodError`, which names the method, as it is). Benchmark cells record it as
+    the reason of the method's failed rows."""
+    if isinstance(exc, MethodError):
+        return " ".join(str(exc).split())
+    where = ""
+    if exc.__traceback__ is not None:
+        last = traceback.extract_tb(exc.__traceback__)[-1]
+        where = f" ({last.filename.rsplit('/', 1)[-1]}:{last.lineno})"
+    return " ".join(f"{type(exc).__name__}: {exc}{where}".split())

@@ -19,7 +19,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from hbench import polyphase as pp
-from hbench.errors import InputError
+from hbench.errors import InputError, MethodError
 from hbench.records import Record, Truth
 
 
@@ -644,7 +644,72 @@ def identify(
         )
     if "truth" in method.needs and truth is None:
         raise InputError(f"method {method.name!r} (an oracle) needs the simulation's truth")
-    return method.identify(rec, options, truth if "truth" in method.needs else None)
+    est = method.identify(rec, options, truth if "truth" in method.needs else None)
+    check_estimate(est, record, method.name)
+    return est
+
+
+def check_estimate(est: Any, record: Record, name: str) -> None:
+    """Raise :class:`~hbench.errors.MethodError` unless ``est`` is an :class:`Estimate` of the
+    shapes :class:`Estimate` documents for ``record`` (``R`` runs, ``K`` slow samples).
+
+    :func:`identify` checks every method's return value with it, so that a plugin returning a
+    malformed estimate fails with a message naming it, instead of an error further down (in the
+    metrics, or in another method's rows). Values are not judged here: ``nan`` is how an
+    estimate says the record does not determine something.
+    """
+    if not isinstance(est, Estimate):
+        raise MethodError(
+            f"method {name!r} returned {type(est).__name__}, not an hbench.identifiers.Estimate"
+        )
+    R, K = record.runs, record.n_slow
+    wanted: dict[str, tuple[int | None, ...]] = {
+        "U": (R, K),
+        "a": (R, None),
+        "b": (R, None),
+        "na": (R,),
+        "nb": (R,),
+        "tau": (R,),
+        "sigma2": (R,),
+        "identifiable": (R,),
+    }
+    if est.delay_multiple is not None:
+        wanted["delay_multiple"] = (R,)
+    problems = []
+    for field_name, shape in wanted.items():
+        got = np.shape(getattr(est, field_name))
+        fits = len(got) == len(shape) and all(
+            w is None or g == w for g, w in zip(got, shape, strict=True)
+        )
+        if not fits:
+            want = tuple("any" if w is None else w for w in shape)
+            problems.append(f"{field_name} of shape {got}, expected {want}".replace("'", ""))
+    if np.shape(est.b)[1:] == (0,):
+        problems.append("b without b1 (shape (R, 0))")
+    for field_name in ("na", "nb", "tau", "delay_multiple"):
+        v = getattr(est, field_name)
+        if field_name in wanted and np.size(v) and not _whole(v):
+            problems.append(f"{field_name} holds values that are not whole numbers")
+    if not isinstance(est.reason, (list, tuple)) or len(est.reason) != R:
+        what = type(est.reason).__name__
+        if isinstance(est.reason, (list, tuple)):
+            what = f"a {what} of {len(est.reason)}"
+        problems.append(f"reason is {what}, expected a list of {R} strings")
+    if problems:
+        raise MethodError(
+            f"method {name!r} returned an invalid estimate for a record of {R} runs and {K} slow "
+            f"samples: {'; '.join(problems)}"
+        )
+
+
+def _whole(v: Any) -> bool:
+    a = np.asarray(v)
+    if a.dtype.kind in "iub":
+        return True
+    if a.dtype.kind != "f":
+        return False
+    with np.errstate(invalid="ignore"):
+        return bool(np.all(np.isfinite(a) & (a == np.round(a))))
 
 
 #: ``numerator(dw, tau, nb, sigma2, idx) -> b`` of shape ``(len(idx), nb)`` with ``b1 = 1``.

@@ -19,7 +19,7 @@ import numpy as np
 import pandas as pd
 
 from hbench import tidy
-from hbench.errors import InputError
+from hbench.errors import InputError, describe
 from hbench.identifiers import Estimate, Identifier, IdentifyOptions, identify
 from hbench.metrics import fitnesses
 from hbench.records import Record, Truth
@@ -81,15 +81,23 @@ def _rows_for(
     params = est.params()
     for key, tv in true.items():
         values[key] = (params.get(key, np.full(R, np.nan)), tv)
-    return tidy.block(
-        method,
-        ids,
-        start,
-        values,
-        truth.snr,
-        np.where(est.identifiable, "ok", "not-identifiable"),
-        list(est.reason),
-    )
+    status, reason = run_status(est)
+    return tidy.block(method, ids, start, values, truth.snr, status, reason)
+
+
+#: Why a run the method called identifiable is counted as failed.
+NO_ESTIMATE = "the method returned no finite inner-signal estimate U for this run"
+
+
+def run_status(est: Estimate) -> tuple[np.ndarray, list[str]]:
+    """Each run's status and reason: ``ok``, ``not-identifiable`` (the method's flag and its
+    reason), or ``failed`` where the method called the run identifiable but returned no finite
+    sample of ``U`` (a result no metric can score: counted as a failure, not as an ok run)."""
+    ok = np.asarray(est.identifiable, bool)
+    empty = ok & ~np.isfinite(est.U).any(axis=1)
+    status = np.where(ok, np.where(empty, "failed", "ok"), "not-identifiable")
+    reason = [NO_ESTIMATE if e else str(r) for e, r in zip(empty, est.reason, strict=True)]
+    return status, reason
 
 
 def _failed_rows(
@@ -228,20 +236,16 @@ def _run_chunk(work: _Work, start: int, n: int) -> tuple[list[tidy.Block], dict[
     frames = []
     for name, method in work.methods.items():
         t0 = time.perf_counter()
-        try:
+        try:  # a method's failure (or its estimate's) fails its own rows, not the chunk's
             est = identify(method, record, work.options, truth)
-        except Exception as exc:
-            last = traceback.extract_tb(exc.__traceback__)[-1]
-            where = f"{last.filename.rsplit('/', 1)[-1]}:{last.lineno}"
-            msg = f"{type(exc).__name__}: {exc} ({where})"
-            frames.append(_failed_rows(name, truth, " ".join(msg.split()), work.ids, start))
-            continue
-        seconds = time.perf_counter() - t0
-        frames.append(
-            _rows_for(
+            seconds = time.perf_counter() - t0
+            block = _rows_for(
                 name, est, truth, record, seconds, work.ids, start, work.options.delay_multiple
             )
-        )
+        except Exception as exc:
+            frames.append(_failed_rows(name, truth, describe(exc), work.ids, start))
+            continue
+        frames.append(block)
         if example:
             example["estimates"][name] = est.U[0].copy()
     return frames, example

@@ -70,7 +70,7 @@ from typing import Any
 import numpy as np
 
 from hbench.diagnose import classes, core
-from hbench.errors import InputError
+from hbench.errors import InputError, MethodError, describe
 from hbench.identifiers import Estimate, IdentifyOptions, identify
 from hbench.records import Record
 
@@ -265,7 +265,12 @@ def identify_blind(
     opts = IdentifyOptions(
         nb_max=nb_max, na_range=na_range, na=na, delay_multiple=int(delay_multiple)
     )
-    est = identify(cls(), rec, opts)
+    try:
+        est = identify(cls(), rec, opts)
+    except (InputError, MethodError):
+        raise
+    except Exception as exc:  # the method's own failure: one line naming it, not a traceback
+        raise MethodError(f"method {method!r} failed: {describe(exc)}") from exc
     if not bool(est.identifiable[0]) or np.all(np.isnan(est.U[0])):
         why = est.reason[0] or "no inner-signal estimate"
         raise InputError(f"the blind method {method!r} cannot identify this record: {why}")
