@@ -51,19 +51,24 @@ class Detection:
     info: dict[str, Any] = field(default_factory=dict)
 
     def as_json(self) -> dict[str, Any]:
-        """The contract's ``{name, statistic, p_value, evidence}``."""
+        """The contract's ``{name, statistic, p_value, evidence}`` (finite numbers: JSON has no
+        ``nan``). A p-value no test could give is 1 (no evidence), never 0, which would read
+        as the strongest evidence; an undefined statistic is 0. The verdict closes the
+        evidence: ``(threshold T: fires)`` or ``(threshold T: quiet)``; it compares the
+        statistic, an effect size, with T, so a small p-value alone does not fire a detector."""
         return {
             "name": self.name,
-            "statistic": _num(self.statistic),
-            "p_value": _num(self.p_value),
+            "statistic": _num(self.statistic, 0.0),
+            "p_value": _num(self.p_value, 1.0),
             "evidence": self.evidence,
         }
 
 
-def _num(v: float) -> float:
+def _num(v: float, undefined: float) -> float:
+    """``v`` as a finite JSON number: ``undefined`` for ``nan``, +-1e300 for infinities."""
     v = float(v)
     if np.isnan(v):
-        return 0.0
+        return undefined
     if np.isinf(v):
         return 1e300 if v > 0 else -1e300
     return v

@@ -1,0 +1,26 @@
+"""The diagnosis JSON's numbers say what they mean (contract: finite numbers, no ``nan``)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from hbench.diagnose.effects import Detection
+
+
+def _json(statistic: float, p_value: float) -> dict:
+    det = Detection("drift", statistic, p_value, 8.0, False, "e (threshold 8: quiet)")
+    return json.loads(json.dumps(det.as_json(), allow_nan=False))
+
+
+def test_an_undefined_p_value_is_no_evidence() -> None:
+    """A p-value no test could give reads as 1 (no evidence), not 0 (the strongest)."""
+    assert _json(np.nan, np.nan) == {
+        "name": "drift",
+        "statistic": 0.0,
+        "p_value": 1.0,
+        "evidence": "e (threshold 8: quiet)",
+    }
+    assert _json(np.inf, 0.25)["statistic"] == 1e300
+    assert _json(2.5, 0.25)["p_value"] == 0.25
