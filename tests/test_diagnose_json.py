@@ -5,7 +5,9 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
+from hbench.diagnose import generator
 from hbench.diagnose.effects import Detection
 
 
@@ -24,3 +26,20 @@ def test_an_undefined_p_value_is_no_evidence() -> None:
     }
     assert _json(np.inf, 0.25)["statistic"] == 1e300
     assert _json(2.5, 0.25)["p_value"] == 0.25
+
+
+def test_a_nominal_model_no_better_than_the_mean_is_not_none(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """No detector fires and the nominal validation fit is <= 0 %: ``unexplained``, not
+    ``none`` (the contract's ``none`` is "the nominal model already explains the data")."""
+    from hbench.diagnose import validate
+
+    case = generator.draw_case(5000, "none", "linear")  # a calibration seed: diagnosed none
+    d = validate.diagnose(generator.simulate_case(case))
+    assert d.cause == "none" and d.baseline_fit > 0
+    assert d.why.startswith("no detector fired, and the nominal model explains")
+    monkeypatch.setattr(validate, "NONE_MIN_FIT", d.baseline_fit + 1.0)
+    again = validate.diagnose(d.ctx.record)
+    assert again.cause == "unexplained"
+    assert "no better than the validation part's mean" in again.why

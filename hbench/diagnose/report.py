@@ -210,7 +210,7 @@ def _summary_rows(d: Any) -> list[tuple[str, str]]:
             ),
         ),
         *_shape_rows(d),
-        ("cause", d.cause),
+        ("cause", f"{d.cause}: {d.why}"),
         (
             "validation fit",
             f"nominal {d.baseline_fit:.1f} %, extended {d.extended_fit:.1f} %, "
