@@ -28,7 +28,6 @@ import html
 import json
 import math
 import os
-import re
 from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
@@ -409,28 +408,6 @@ def failure_table(rows: Any, messages: int = 3, width: int = 200) -> Any:
 
 # --------------------------------------------------------------------------- table files
 
-_TEX_SPECIAL = {
-    "\\": r"\textbackslash{}",
-    "_": r"\_",
-    "%": r"\%",
-    "&": r"\&",
-    "#": r"\#",
-    "$": r"\$",
-    "{": r"\{",
-    "}": r"\}",
-    "~": r"\textasciitilde{}",
-    "^": r"\textasciicircum{}",
-    "<": r"\textless{}",
-    ">": r"\textgreater{}",
-}
-
-
-def _tex_text(text: str, full: bool = True) -> str:
-    """``text`` on one line for LaTeX; ``full=False`` leaves ``_`` and ``%`` to
-    :func:`hbench.results.to_latex`, which escapes those in every cell."""
-    special = r"[\\&#${}~^<>_%]" if full else r"[\\&#${}~^<>]"
-    return re.sub(special, lambda m: _TEX_SPECIAL[m.group()], " ".join(text.split()))
-
 
 def _md_text(text: str) -> str:
     """``text`` on one line for a Markdown table cell (``\\`` and ``|`` escaped)."""
@@ -460,7 +437,8 @@ def write_table(
     name : str
         Stem of the files (and the LaTeX caption ``hbench <name>``).
     table : DataFrame
-        The table; its text cells are escaped for Markdown (``|``) and LaTeX.
+        The table; its text cells are escaped for Markdown (``|``) and LaTeX
+        (:func:`hbench.results.tex_escape`, in :func:`hbench.results.to_latex`).
     note : str
         A line written above the Markdown table and as a LaTeX comment above the table.
     empty : str
@@ -469,18 +447,18 @@ def write_table(
     wrap_last : bool
         Let the last column's text wrap in LaTeX (a ``p`` column; long messages).
     """
-    from hbench.results import to_latex, to_markdown
+    from hbench.results import tex_escape, to_latex, to_markdown
 
     lines = [line for line in (note, empty if table.empty else "") if line]
     md = to_markdown(_text_cells(table, _md_text))
     (out / f"{name}.md").write_text("".join(f"{_md_text(line)}\n\n" for line in lines) + md)
-    tex = to_latex(_text_cells(table, lambda t: _tex_text(t, full=False)), caption=f"hbench {name}")
+    tex = to_latex(table, caption=f"hbench {name}")  # to_latex escapes the text cells
     ncols = len(table.columns)
     if wrap_last and ncols:
         spec = "{" + "l" * ncols + "}"
         tex = tex.replace(spec, "{" + "l" * (ncols - 1) + r"p{0.4\linewidth}}", 1)
     if table.empty and empty:
-        span = rf"\multicolumn{{{ncols}}}{{p{{0.8\linewidth}}}}{{{_tex_text(empty)}}} \\"
+        span = rf"\multicolumn{{{ncols}}}{{p{{0.8\linewidth}}}}{{{tex_escape(empty)}}} \\"
         tex = tex.replace("\\bottomrule", span + "\n\\bottomrule", 1)
     if note:
         tex = f"% {' '.join(note.split())}\n" + tex
@@ -707,7 +685,7 @@ def build_report(
     are rendered in the same batch (the reproduction's Figures 4 and 5).
     """
     from hbench import figures, report_beyond
-    from hbench.results import aggregate, new_output_dir
+    from hbench.results import aggregate, display_table, new_output_dir
 
     run_dir = Path(run_dir)
     if rows is None:
@@ -722,7 +700,8 @@ def build_report(
     out.mkdir(parents=True, exist_ok=True)
 
     stats = cell_stats(rows)
-    fitness_table, bias_table = aggregate(rows)
+    # as the renderings show them: SNR cells told apart (column snr_target), sorted by level
+    fitness_table, bias_table = (display_table(t) for t in aggregate(rows, level=True))
     ranking = stats["ranking"]
     timing = stats["timing"].rename(columns={"mean": "seconds_mean", "std": "seconds_std"})
     failures = failure_table(rows)

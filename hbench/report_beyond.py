@@ -87,9 +87,8 @@ def missing(methods: Sequence[str], part: str) -> list[str]:
 
 def _ordered(table: pd.DataFrame) -> pd.DataFrame:
     """Rows by (nonlinearity, p), then SNR cells by rising SNR, then sigma^2 cells by rising
-    sigma^2 (column ``_o``, the sort key of the level)."""
-    level = table[results.LEVEL]
-    order = np.where(level < 0, 1.0 / level.where(level < 0, -1.0), level)
+    sigma^2 (column ``_o``: :func:`hbench.results.level_order`, as in the other tables)."""
+    order = results.level_order(table[results.LEVEL])
     return table.assign(_o=order).sort_values(["nonlinearity", "p", "_o"], kind="mergesort")
 
 

@@ -6,12 +6,17 @@ fitness_mean, fitness_std`` (fitness in %, the paper's gain scaling). ``bias.csv
 the contract's): one row per (method, cell, quantity) for the structure quantities na, nb, tau and
 delay with ``snr_mean, true, hit_rate, n``. For cells given by a target SNR the ``sigma2`` column
 is empty (nan): the level varies by run; the tidy rows keep ``snr_target``.
+
+The Markdown, LaTeX and HTML renderings of these tables are not the contract: they show
+:func:`display_table` (a column ``snr_target`` tells SNR cells apart, rows sorted by noise level),
+empty numbers as blank cells, and every LaTeX text goes through :func:`tex_escape`.
 """
 
 from __future__ import annotations
 
 import json
 import platform
+import re
 import subprocess
 from collections.abc import Mapping
 from datetime import UTC, datetime
@@ -35,6 +40,8 @@ STRUCTURE_QUANTITIES = ("na", "nb", "tau", "delay")
 HIT_TOLERANCE = 1e-9
 #: Column of the cell's noise level: sigma2, or -snr_target for a cell given by a target SNR.
 LEVEL = "level"
+#: Column the renderings (not the CSV files) add for the target SNR of SNR cells.
+SNR_TARGET = "snr_target"
 
 
 def _is_param(q: pd.Series) -> pd.Series:
@@ -48,6 +55,60 @@ def level_key(rows: pd.DataFrame) -> pd.Series:
     from sigma2 cells and from each other.
     """
     return rows["sigma2"].where(rows["sigma2"].notna(), -rows["snr_target"])
+
+
+def level_order(level: pd.Series) -> pd.Series:
+    """Sort key of noise levels (:func:`level_key`): SNR cells first, by rising SNR, then
+    sigma^2 cells by rising sigma^2; an unknown (nan) level sorts last.
+
+    Parameters
+    ----------
+    level : Series
+        Levels as in the column :data:`LEVEL` (``-snr_target`` for SNR cells).
+
+    Returns
+    -------
+    Series
+        A float key on the same index: ``1 / level`` (negative) for SNR cells, ``level``
+        otherwise.
+    """
+    level = pd.to_numeric(level, errors="coerce").astype(float)
+    snr = level < 0
+    return pd.Series(np.where(snr, 1.0 / level.where(snr, -1.0), level), index=level.index)
+
+
+def display_table(table: pd.DataFrame) -> pd.DataFrame:
+    """An aggregated table as the Markdown, LaTeX and HTML renderings show it.
+
+    Parameters
+    ----------
+    table : DataFrame
+        :func:`aggregate`'s or :func:`structure`'s table with ``level=True`` (without the
+        column :data:`LEVEL` the rows are only sorted by method and cell).
+
+    Returns
+    -------
+    DataFrame
+        The same rows without :data:`LEVEL`: when a cell is given by a target SNR (its
+        ``sigma2`` empty), a column :data:`SNR_TARGET` after ``sigma2`` holds it (empty for
+        sigma^2 cells), so that rows of different noise levels differ in their key columns.
+        Rows are sorted by method, nonlinearity, p and delay, then by level
+        (:func:`level_order`: numerically), then as they were (parameter, quantity).
+    """
+    out = table.reset_index(drop=True)
+    if LEVEL in out.columns:
+        level = pd.to_numeric(out[LEVEL], errors="coerce").astype(float)
+        out = out.drop(columns=[LEVEL])
+        if (level < 0).any():
+            at = out.columns.get_loc("sigma2") + 1 if "sigma2" in out.columns else len(out.columns)
+            out.insert(at, SNR_TARGET, (-level).where(level < 0))
+        out["_order"] = level_order(level)
+    else:
+        out["_order"] = 0.0
+    out["_row"] = np.arange(len(out))
+    keys = [c for c in ("method", "nonlinearity", "p", "delay") if c in out.columns]
+    out = out.sort_values([*keys, "_order", "_row"], na_position="last")
+    return out.drop(columns=["_order", "_row"]).reset_index(drop=True)
 
 
 def _by_cell(
@@ -136,57 +197,179 @@ def structure(rows: pd.DataFrame, level: bool = False) -> pd.DataFrame:
     return table[STRUCTURE_COLUMNS + ([LEVEL] if level else [])].reset_index(drop=True)
 
 
+#: LaTeX for the characters that are special in LaTeX text (and for a few non-ASCII ones the
+#: package writes, which pdflatex's default fonts lack).
+_TEX_SPECIAL = {
+    "\\": r"\textbackslash{}",
+    "&": r"\&",
+    "%": r"\%",
+    "$": r"\$",
+    "#": r"\#",
+    "_": r"\_",
+    "{": r"\{",
+    "}": r"\}",
+    "~": r"\textasciitilde{}",
+    "^": r"\textasciicircum{}",
+    "<": r"\textless{}",
+    ">": r"\textgreater{}",
+    "|": r"\textbar{}",
+    "±": r"\ensuremath{\pm}",
+    "×": r"\ensuremath{\times}",
+    "−": "-",
+    "–": "--",
+    "—": "---",
+    "²": r"\ensuremath{^2}",
+    "σ": r"\ensuremath{\sigma}",
+    "τ": r"\ensuremath{\tau}",
+    "Δ": r"\ensuremath{\Delta}",
+    "≤": r"\ensuremath{\leq}",
+    "≥": r"\ensuremath{\geq}",
+}
+_TEX_PATTERN = re.compile("|".join(re.escape(c) for c in _TEX_SPECIAL))
+#: LaTeX that callers put in cells before :func:`to_latex` escaped them (hbench.reproduce's ``±``).
+_TEX_ALREADY = {r"$\pm$": "±"}
+
+
+def tex_escape(text: Any) -> str:
+    """``text`` as LaTeX text: on one line, every special character escaped.
+
+    The one escaping function of the package: :func:`to_latex` applies it to captions,
+    headers and text cells, and :mod:`hbench.report` to the text it writes in LaTeX.
+
+    Parameters
+    ----------
+    text : object
+        Any value; its ``str`` is escaped.
+
+    Returns
+    -------
+    str
+        Whitespace runs (newlines too) as one space; ``& % $ # _ { }`` with a backslash before,
+        a backslash as ``\\textbackslash{}``, ``~ ^ < > |`` as ``\\textasciitilde{}``,
+        ``\\textasciicircum{}``, ``\\textless{}``, ... (one pass: an escape is never escaped
+        again); ``±`` and a few other non-ASCII symbols (``σ ² × ≤ ...``) in math. ``$\\pm$``,
+        the LaTeX :mod:`hbench.reproduce` writes for ``±`` in its cells, is read as ``±``.
+    """
+    text = " ".join(str(text).split())
+    for latex, plain in _TEX_ALREADY.items():
+        text = text.replace(latex, plain)
+    return _TEX_PATTERN.sub(lambda m: _TEX_SPECIAL[m.group()], text)
+
+
+def _is_missing(v: Any) -> bool:
+    """Whether a cell is an empty number (nan, None, pandas' NA)."""
+    if v is None or v is pd.NA or v is pd.NaT:
+        return True
+    return isinstance(v, float | np.floating) and bool(np.isnan(v))
+
+
+def _cell(v: Any, floatfmt: str) -> str | None:
+    """A number formatted for a table (missing: ``""``), or None for a text cell."""
+    if _is_missing(v):
+        return ""
+    if isinstance(v, float | np.floating):
+        return format(float(v), floatfmt)
+    return None
+
+
 def to_markdown(table: pd.DataFrame, floatfmt: str = ".4g") -> str:
-    """A GitHub-flavoured Markdown table (no extra dependency)."""
+    """A GitHub-flavoured Markdown table (no extra dependency).
+
+    Parameters
+    ----------
+    table : DataFrame
+        The table; cells are shown as they are (escape ``|`` in text before).
+    floatfmt : str
+        Format of float cells; an empty number (nan) is a blank cell.
+
+    Returns
+    -------
+    str
+        The header, the separator line and one line per row.
+    """
     cols = list(table.columns)
 
-    def fmt(v):
-        return format(v, floatfmt) if isinstance(v, float) else str(v)
+    def fmt(v: Any) -> str:
+        number = _cell(v, floatfmt)
+        return str(v) if number is None else number
 
-    lines = ["| " + " | ".join(cols) + " |", "|" + "|".join("---" for _ in cols) + "|"]
-    for _, row in table.iterrows():
-        lines.append("| " + " | ".join(fmt(row[c]) for c in cols) + " |")
+    lines = ["| " + " | ".join(map(str, cols)) + " |", "|" + "|".join("---" for _ in cols) + "|"]
+    for row in table.itertuples(index=False, name=None):
+        lines.append("| " + " | ".join(fmt(v) for v in row) + " |")
     return "\n".join(lines) + "\n"
 
 
 def to_latex(table: pd.DataFrame, caption: str = "", floatfmt: str = ".4g") -> str:
-    """A booktabs LaTeX table."""
+    """A booktabs LaTeX table.
+
+    Parameters
+    ----------
+    table : DataFrame
+        The table; its headers and text cells are plain text (:func:`tex_escape` escapes them).
+    caption : str
+        Plain text (escaped too); none when empty.
+    floatfmt : str
+        Format of float cells; an empty number (nan) is a blank cell.
+
+    Returns
+    -------
+    str
+        A ``table`` environment with a ``tabular`` of left-aligned columns.
+    """
     cols = list(table.columns)
 
-    def esc(s):
-        return str(s).replace("_", r"\_").replace("%", r"\%")
-
-    def fmt(v):
-        return format(v, floatfmt) if isinstance(v, float) else esc(v)
+    def fmt(v: Any) -> str:
+        number = _cell(v, floatfmt)
+        return tex_escape(v) if number is None else number
 
     out = [
         r"\begin{table}[ht]",
         r"\centering",
         r"\begin{tabular}{" + "l" * len(cols) + "}",
         r"\toprule",
-        " & ".join(esc(c) for c in cols) + r" \\",
+        " & ".join(tex_escape(c) for c in cols) + r" \\",
         r"\midrule",
     ]
-    for _, row in table.iterrows():
-        out.append(" & ".join(fmt(row[c]) for c in cols) + r" \\")
+    for row in table.itertuples(index=False, name=None):
+        out.append(" & ".join(fmt(v) for v in row) + r" \\")
     out += [r"\bottomrule", r"\end{tabular}"]
     if caption:
-        out.append(r"\caption{" + esc(caption) + "}")
+        out.append(r"\caption{" + tex_escape(caption) + "}")
     out.append(r"\end{table}")
     return "\n".join(out) + "\n"
 
 
 def write_tables(rows: pd.DataFrame, out: Path) -> dict[str, Path]:
-    """Aggregate ``rows`` and write fitness, bias and structure as CSV, Markdown and LaTeX
-    into ``out``."""
+    """Aggregate ``rows`` and write fitness, bias and structure into ``out``.
+
+    Parameters
+    ----------
+    rows : DataFrame
+        Tidy rows (:data:`hbench.schema.TIDY_COLUMNS`).
+    out : Path
+        The folder (made if missing).
+
+    Returns
+    -------
+    dict of str -> Path
+        ``{"fitness.csv": path, ...}``: the CSV files (the contract's columns, and
+        :data:`STRUCTURE_COLUMNS`). Beside each, ``.md`` and ``.tex`` show
+        :func:`display_table` (SNR cells told apart, rows sorted by level).
+    """
     out.mkdir(parents=True, exist_ok=True)
-    fitness, bias = aggregate(rows)
+    fitness, bias = aggregate(rows, level=True)
     paths = {}
-    for name, table in (("fitness", fitness), ("bias", bias), ("structure", structure(rows))):
+    for name, table in (
+        ("fitness", fitness),
+        ("bias", bias),
+        ("structure", structure(rows, level=True)),
+    ):
         paths[f"{name}.csv"] = out / f"{name}.csv"
-        table.to_csv(paths[f"{name}.csv"], index=False, float_format="%.10g")
-        (out / f"{name}.md").write_text(to_markdown(table))
-        (out / f"{name}.tex").write_text(to_latex(table, caption=f"hbench {name}"))
+        csv = table.drop(columns=[LEVEL])
+        csv.to_csv(paths[f"{name}.csv"], index=False, float_format="%.10g")
+        shown = display_table(table)
+        (out / f"{name}.md").write_text(to_markdown(shown))
+        (out / f"{name}.tex").write_text(to_latex(shown, caption=f"hbench {name}"))
     return paths
 
 
@@ -250,12 +433,30 @@ def write_provenance(out: Path, **kwargs: Any) -> Path:
 
 
 def new_output_dir(base: Path, name: str) -> Path:
-    """A fresh folder ``base/name-YYYYmmddTHHMMSSZ[-k]``: earlier results are never overwritten."""
+    """A fresh folder ``base/name-YYYYmmddTHHMMSSZ[-k]``: earlier results are never overwritten.
+
+    Parameters
+    ----------
+    base : Path
+        The parent folder (made if missing).
+    name : str
+        The folder's prefix.
+
+    Returns
+    -------
+    Path
+        The folder, just made by this call: each candidate (``-2``, ``-3``, ... after the
+        first) is claimed by ``mkdir`` itself, so runs started in the same second (even
+        concurrently) each get their own.
+    """
     stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
-    path = base / f"{name}-{stamp}"
+    base.mkdir(parents=True, exist_ok=True)
     k = 1
-    while path.exists():
-        k += 1
-        path = base / f"{name}-{stamp}-{k}"
-    path.mkdir(parents=True)
-    return path
+    while True:
+        path = base / (f"{name}-{stamp}" if k == 1 else f"{name}-{stamp}-{k}")
+        try:
+            path.mkdir()
+        except FileExistsError:
+            k += 1
+            continue
+        return path
