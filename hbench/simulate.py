@@ -9,6 +9,7 @@ by the feedback and the actuator's memory, and its body is array operations over
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any
@@ -25,6 +26,14 @@ from hbench.plants import DiscretePlant, PlantModel
 from hbench.records import Record, Truth
 from hbench.seeding import as_generator, run_streams
 from hbench.signals import Reference
+
+
+class ZeroOutputWarning(UserWarning):
+    """A simulated run whose noise-free output is identically zero (the actuator never moved).
+
+    Legal data (the record is noise only, SNR 0), but rarely what was meant: it is what a
+    stickband or dead zone wider than the controller output's excursion gives.
+    """
 
 
 @dataclass
@@ -237,6 +246,63 @@ def _run_loop(
     return y0.reshape(R, K * p), X.T.copy(), U.T.copy()
 
 
+def _describe_nonlinearity(nonlinearity: Nonlinearity) -> str:
+    """``"stiction S=0.2, J=0.02, u0=0"``: the actuator's name and parameters, for messages.
+
+    Parameters
+    ----------
+    nonlinearity : Nonlinearity
+        The actuator model.
+
+    Returns
+    -------
+    str
+        Its name (its class name if it has none) followed by its parameters.
+    """
+    name = nonlinearity.name or type(nonlinearity).__name__
+    params = ", ".join(
+        f"{k}={v:g}" if isinstance(v, int | float) and not isinstance(v, bool) else f"{k}={v}"
+        for k, v in nonlinearity.params().items()
+    )
+    return f"{name} {params}" if params else name
+
+
+def _zero_output_cause(
+    nonlinearity: Nonlinearity, y0: np.ndarray, x: np.ndarray, U: np.ndarray
+) -> tuple[np.ndarray, str]:
+    """The runs whose noise-free output is identically zero, and why, in words.
+
+    Parameters
+    ----------
+    nonlinearity : Nonlinearity
+        The actuator model (named in the cause).
+    y0, x, U : numpy.ndarray
+        Noise-free output ``(runs, N)``, controller output and actuator output ``(runs, K)``.
+
+    Returns
+    -------
+    zero : numpy.ndarray
+        Boolean mask ``(runs,)`` of the runs whose ``y0`` is zero at every sample.
+    cause : str
+        ``"the actuator never moves (...)"`` when the actuator output of those runs is
+        constant (with the range of the controller output), else a plainer description;
+        empty when no run is zero.
+    """
+    zero = ~np.any(y0 != 0, axis=-1)
+    if not zero.any():
+        return zero, ""
+    what = f"nonlinearity {_describe_nonlinearity(nonlinearity)}"
+    Uz, xz = U[zero], x[zero]
+    if np.all(Uz == Uz[:, :1]):
+        cause = (
+            f"the actuator never moves ({what}; its input x stays within "
+            f"[{xz.min():.3g}, {xz.max():.3g}])"
+        )
+    else:
+        cause = f"the plant's response to the actuator output is zero ({what})"
+    return zero, cause
+
+
 def _snr(y0: np.ndarray, v: np.ndarray) -> np.ndarray:
     nv = np.linalg.norm(v, axis=-1)
     with np.errstate(divide="ignore"):
@@ -281,6 +347,21 @@ def simulate(
         What an identifier may see (``y``, ``x``, ``r``, ``p``, ``h``).
     truth : Truth
         Inner signal, noise-free output, noise, plant, sigma^2 and SNR per run.
+
+    Raises
+    ------
+    InputError
+        Bad ``runs``; a target SNR that is not reached (see ``snr_accept``), or that cannot be
+        set because the noise-free output of some run is identically zero (an actuator that
+        never leaves its stickband or dead zone).
+    UnstableError
+        An unstable or diverging closed loop.
+
+    Warns
+    -----
+    ZeroOutputWarning
+        With ``sigma2``: the noise-free output of some run is identically zero, so its record
+        is noise only (SNR 0).
     """
     rng = as_generator(rng)
     if int(runs) != runs or runs < 1:
@@ -306,9 +387,28 @@ def simulate(
         sigma2 = np.full(runs, float(sc.sigma2))
         v = np.sqrt(sigma2)[:, None] * v_unit
         y0, x, U = _run_loop(lp, sc.controller, sc.nonlinearity, r, v, p)
+        zero, cause = _zero_output_cause(sc.nonlinearity, y0, x, U)
+        if zero.any() and np.all(np.isfinite(y0)):  # legal data (noise only), but say so
+            those = "that record is" if zero.sum() == 1 else "those records are"
+            warnings.warn(
+                f"scenario {sc.name!r}: the noise-free output is zero in {int(zero.sum())} of "
+                f"{runs} runs: {cause}; {those} noise only (SNR = 0)",
+                ZeroOutputWarning,
+                stacklevel=2,
+            )
     else:
         # fixed-point iteration on the per-run scale: the loop feeds the noise back into y0
         y0, x, U = _run_loop(lp, sc.controller, sc.nonlinearity, r, np.zeros_like(v_unit), p)
+        if not np.all(np.isfinite(y0)):
+            raise UnstableError(f"closed loop of scenario {sc.name!r} diverged (non-finite output)")
+        zero, cause = _zero_output_cause(sc.nonlinearity, y0, x, U)
+        if zero.any():  # no noise level gives ||y0|| / ||v|| = snr: refuse before scaling
+            raise InputError(
+                f"scenario {sc.name!r}: the noise-free output is zero in {int(zero.sum())} of "
+                f"{runs} runs: {cause}: an SNR cannot be set (target {sc.snr:g}); narrow the "
+                "actuator's band, raise the reference amplitude or the controller gain, or "
+                "give sigma2 instead of snr"
+            )
         # Each run's scale follows its own iteration and freezes once that run has converged,
         # so a run's result does not depend on the other runs of its batch (chunking).
         nv = np.linalg.norm(v_unit, axis=-1)

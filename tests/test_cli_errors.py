@@ -10,6 +10,9 @@ from __future__ import annotations
 import copy
 import json
 import os
+import re
+import subprocess
+import sys
 from collections.abc import Callable
 from pathlib import Path
 
@@ -198,6 +201,45 @@ def test_simulate_bad_set_value(
     line = _one_line_error(stderr, "simulate")
     assert f" {key} must be" in line and value in line
     assert not out.exists()
+
+
+STUCK_VALVE = ["--set", "nonlinearity.name=stiction", "--set", "nonlinearity.S=0.2"]
+
+
+def test_simulate_snr_of_an_actuator_that_never_moves_is_one_line(tmp_path: Path) -> None:
+    """The review's repro, as a user runs it (a subprocess, so a leaked numpy warning shows):
+    exit 2, one line naming the cause, no RuntimeWarning, no "choose a larger SNR"."""
+    out = tmp_path / "s.csv"
+    argv = ["simulate", "--out", str(out), *STUCK_VALVE, "--set", "noise.snr=50"]
+    proc = subprocess.run(
+        [sys.executable, "-m", "hbench.cli", *argv], capture_output=True, text=True, timeout=120
+    )
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stdout == ""
+    line = _one_line_error(proc.stderr, "simulate")
+    assert "RuntimeWarning" not in line and "choose a larger SNR" not in line
+    assert "noise-free output is zero in 1 of 1 runs" in line
+    assert "actuator never moves" in line and "stiction S=0.2" in line
+    assert "an SNR cannot be set" in line
+    assert not out.exists()
+
+
+def test_simulate_sigma2_of_an_actuator_that_never_moves_warns(
+    run_cli: RunCli, tmp_path: Path
+) -> None:
+    """With sigma2 the noise-only record is written (legal data), with a one-line warning
+    saying why its SNR is 0 (it printed "SNR = 0" and nothing else)."""
+    out = tmp_path / "s.csv"
+    argv = ["simulate", "--out", str(out), *STUCK_VALVE, "--set", "nonlinearity.S=0.5"]
+    status, _, stderr = run_cli([*argv, "--set", "noise.sigma2=0.001"])
+    assert status == 0, stderr
+    warning, wrote = stderr.strip().splitlines()
+    assert warning.startswith("hbench simulate: warning: scenario ")
+    assert re.search(
+        r"actuator never moves .*noise only \(SNR = 0\) \(ZeroOutputWarning\)$", warning
+    )
+    assert wrote.startswith("wrote ") and wrote.endswith("SNR = 0)")
+    assert out.exists()
 
 
 @pytest.mark.parametrize("setting", ["p=5.0", "plant.delay=4.0", "reference.band=[0,1e-1]"])

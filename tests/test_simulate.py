@@ -6,6 +6,7 @@ tests use short records (60-120 s) because the properties checked hold sample by
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable
 from typing import Any
 
@@ -15,7 +16,7 @@ from scipy import signal
 
 from hbench.errors import InputError, UnstableError
 from hbench.signals import PRBS, RBS, Steps
-from hbench.simulate import Scenario, closed_loop_radius, simulate
+from hbench.simulate import Scenario, ZeroOutputWarning, closed_loop_radius, simulate
 
 MakeScenario = Callable[..., Scenario]
 KP = 0.1  # the paper's P controller (PAPER_SECTION6)
@@ -163,6 +164,53 @@ def test_attainable_snr_with_stiction_is_met(make_scenario: MakeScenario) -> Non
     _, truth = simulate(sc, 1, 7, start=173)
     # the brief's requirement for a requested SNR (as in test_requested_snr_is_met)
     np.testing.assert_allclose(truth.snr, 2.0, rtol=0.02)
+
+
+#: A stickband wider than the P controller's output (|x| <= kp * amplitude = 0.1 on a noise-free
+#: loop): the valve never breaks away, so the noise-free output is identically zero.
+STUCK_VALVE = {"name": "stiction", "S": 0.2, "J": 0.02}
+
+
+def test_snr_target_with_an_actuator_that_never_moves_is_refused(
+    make_scenario: MakeScenario,
+) -> None:
+    """No noise level gives ||y0|| / ||v|| = snr when y0 = 0: the refusal names that cause (it
+    said "best relative error inf .. inf ... choose a larger SNR", after a RuntimeWarning)."""
+    sc = make_scenario({"noise.snr": 50.0, "nonlinearity": STUCK_VALVE}, duration=100.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # nothing leaks (it was 0 * inf in the scale update)
+        with pytest.raises(InputError) as info:
+            simulate(sc, 2, 7)
+    msg = str(info.value)
+    assert "noise-free output is zero in 2 of 2 runs" in msg
+    assert "actuator never moves" in msg and "stiction S=0.2, J=0.02" in msg
+    assert "an SNR cannot be set" in msg
+    assert "choose a larger SNR" not in msg and "inf" not in msg
+
+
+def test_sigma2_record_of_an_actuator_that_never_moves_warns(
+    make_scenario: MakeScenario,
+) -> None:
+    """With sigma2 the record is legal (noise only), but simulate says so, once, plainly."""
+    stuck = {**STUCK_VALVE, "S": 0.5}  # wide enough that the noise fed back does not move it
+    sc = make_scenario({"noise.sigma2": 1e-3, "nonlinearity": stuck}, duration=100.0)
+    with pytest.warns(ZeroOutputWarning) as caught:
+        _, truth = simulate(sc, 2, 7)
+    assert len(caught) == 1
+    msg = str(caught[0].message)
+    assert "\n" not in msg
+    assert "noise-free output is zero in 2 of 2 runs" in msg and "stiction S=0.5" in msg
+    assert "noise only (SNR = 0)" in msg
+    assert caught[0].filename == __file__  # attributed to the caller, not to simulate.py
+    assert np.all(truth.y0 == 0) and np.all(truth.snr == 0)
+
+
+def test_a_moving_actuator_does_not_warn(make_scenario: MakeScenario) -> None:
+    sc = make_scenario({"noise.sigma2": 1e-3, "nonlinearity": STUCK_VALVE}, duration=100.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ZeroOutputWarning)
+        _, truth = simulate(sc, 2, 7)  # the noise fed back kicks the valve out of its band
+    assert np.all(np.linalg.norm(truth.y0, axis=-1) > 0)
 
 
 # --------------------------------------------------------------------------- seeding
