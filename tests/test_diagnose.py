@@ -225,11 +225,13 @@ def test_json_to_stdout(run_cli: RunCli, nominal_file: Path) -> None:
 
 
 def _one_line_error(status: int, err: str) -> str:
+    """The contract: exit 2 and one line on stderr (no notice before it, no traceback)."""
     assert status == 2
     lines = err.strip().splitlines()
-    assert lines and lines[-1].startswith("hbench diagnose: error: ")
+    assert len(lines) == 1, err
+    assert lines[0].startswith("hbench diagnose: error: ")
     assert "Traceback" not in err
-    return lines[-1]
+    return lines[0]
 
 
 def test_missing_file(run_cli: RunCli, tmp_path: Path) -> None:
@@ -295,6 +297,35 @@ def test_constant_output_is_refused(run_cli: RunCli, tmp_path: Path) -> None:
     )
     msg = _one_line_error(*run_cli(["diagnose", str(path)])[::2])
     assert "constant" in msg
+
+
+def test_constant_output_is_one_error_line_without_the_notice(
+    run_cli: RunCli, tmp_path: Path
+) -> None:
+    """The review's record (600 rows, h = 0.1 s, x held over 5 samples, y constant): the
+    reader's notice "'y' is constant" came before the error, two lines for one refusal."""
+    path = tmp_path / "flat_y.csv"
+    n, p = 600, 5
+    x = np.repeat(np.random.default_rng(1).standard_normal(n // p), p)
+    pd.DataFrame({"t": np.arange(n) * 0.1, "x": x, "y": np.full(n, 1.5)}).to_csv(path, index=False)
+    status, stdout, stderr = run_cli(["diagnose", str(path)])
+    assert stdout == ""
+    msg = _one_line_error(status, stderr)
+    assert "constant" in msg and "notice" not in stderr
+
+
+def test_notices_of_an_accepted_record_are_still_shown(
+    run_cli: RunCli, nominal_file: Path, tmp_path: Path
+) -> None:
+    """Dropping the last two rows leaves an incomplete last period: the record is accepted,
+    and the reader's notice about the trimming is printed (on stderr, before nothing else)."""
+    path = tmp_path / "cut.csv"
+    pd.read_csv(nominal_file).iloc[:-2].to_csv(path, index=False)
+    status, stdout, stderr = run_cli(["diagnose", str(path)])
+    assert status == 0, stderr
+    assert "cause:" in stdout
+    notices = [line for line in stderr.splitlines() if line.startswith("notice: ")]
+    assert len(notices) == 1 and "trailing fast sample(s)" in notices[0], stderr
 
 
 def test_bad_options(run_cli: RunCli, nominal_file: Path) -> None:

@@ -29,11 +29,25 @@ def _summary(d) -> str:
     return "\n".join(lines)
 
 
+def _print_notices(notices: list[str]) -> None:
+    """Print the record reader's notices on stderr, one a line.
+
+    Parameters
+    ----------
+    notices : list of str
+        Lines already prefixed with ``"notice: "``.
+    """
+    for line in notices:
+        print(line, file=sys.stderr)
+
+
 def run(args: argparse.Namespace) -> int:
     """``hbench diagnose``: read the record, diagnose it, print and write the results.
 
     The five-line summary goes to stdout, or to stderr when ``--json -`` puts the JSON on
-    stdout (which then holds nothing else). Output paths are checked before the work.
+    stdout (which then holds nothing else). Output paths are checked before the work. The
+    reader's notices go to stderr once the diagnosis has accepted the record: a refused record
+    gives its one error line only.
 
     Parameters
     ----------
@@ -72,16 +86,24 @@ def run(args: argparse.Namespace) -> int:
     if args.method not in reg.names("identifiers"):
         known = ", ".join(reg.names("identifiers"))
         raise InputError(f"unknown method {args.method!r} (known: {known})")
-    for notice in record.meta.get("notices", []):
-        print(f"notice: {notice}", file=sys.stderr)
-    with np.errstate(all="ignore"):
-        d = diagnose(
-            record,
-            source=str(args.record),
-            method=args.method,
-            fit_fraction=args.fit_fraction,
-            delay_multiple=args.delay_multiple,
-        )
+    notices = [f"notice: {n}" for n in record.meta.get("notices", [])]
+    try:
+        with np.errstate(all="ignore"):
+            d = diagnose(
+                record,
+                source=str(args.record),
+                method=args.method,
+                fit_fraction=args.fit_fraction,
+                delay_multiple=args.delay_multiple,
+            )
+    except InputError:
+        # a refused record: its one error line alone (a notice such as "'y' is constant" would
+        # be a second line that the error repeats)
+        raise
+    except Exception:
+        _print_notices(notices)  # an internal failure: the notices may help explain it
+        raise
+    _print_notices(notices)  # an accepted record's notices, before its summary
     out = d.as_json()
     print(_summary(d), file=info)
     if args.json:
