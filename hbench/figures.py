@@ -346,24 +346,40 @@ def _common_ylim(series: Sequence[Any]) -> tuple[float, float] | None:
 
 
 def time_per_method(stats: Any, label: Callable[[str], str]) -> Any:
-    """Mean time per run (s) per method, error bars one std over runs; log axis.
+    """Mean time per run (s) per method, error bars one std between batches; log axis.
 
-    ``stats`` columns: ``method, mean, std``.
+    A run's time is its batch's time divided by the runs in the batch (the runs of a chunk are
+    identified together), so the runs of one batch share one value: the std is the spread
+    between batches (cells, and chunks of a cell), not between the runs of a batch.
+
+    Parameters
+    ----------
+    stats : pandas.DataFrame
+        Columns ``method, mean, std`` (seconds per run over a method's rows).
+    label : callable
+        Display label of a method name.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        The horizontal bar chart.
     """
     import numpy as np
 
     plt = pyplot()
     s = stats.sort_values("mean")
-    height = 0.32 * len(s) + 0.9
+    height = 0.32 * len(s) + 1.1  # room for the two-line axis label
     fig, ax = plt.subplots(figsize=(6.4, height))
-    fig.subplots_adjust(left=0.42, right=0.97, bottom=0.5 / height, top=1 - 0.15 / height)
+    fig.subplots_adjust(left=0.42, right=0.97, bottom=0.7 / height, top=1 - 0.15 / height)
     y = np.arange(len(s))
     mean = s["mean"].to_numpy(float)
     err = np.minimum(s["std"].fillna(0.0).to_numpy(float), 0.9 * mean)  # log axis: stay > 0
     ax.barh(y, mean, xerr=err, color="C0", alpha=0.8, capsize=2.5)
     ax.set_yticks(y, [label(m) for m in s["method"]])
     _log(ax, "x")
-    ax.set_xlabel("identification time per run (s)")
+    ax.set_xlabel(
+        "identification time per run (s) = batch time / runs\nerror bar: one std between batches"
+    )
     ax.grid(axis="y", visible=False)
     return fig
 

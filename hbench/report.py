@@ -764,8 +764,8 @@ def build_report(
             len(stats["timing"]) > 0,
             "fig-time",
             (out / "time", "time_per_method", (stats["timing"], method_label), {}),
-            "Identification time per run (mean ± std over runs; a batch's time is shared "
-            "equally among its runs).",
+            "Identification time per run: a batch's time divided by its runs (the runs of a "
+            "batch share one value), mean ± one std between batches (cells and chunks).",
             missing("fig-time", "no time per method to draw", "No ok run has a time"),
         ),
         (

@@ -226,8 +226,6 @@ _TEX_SPECIAL = {
     "≥": r"\ensuremath{\geq}",
 }
 _TEX_PATTERN = re.compile("|".join(re.escape(c) for c in _TEX_SPECIAL))
-#: LaTeX that callers put in cells before :func:`to_latex` escaped them (hbench.reproduce's ``±``).
-_TEX_ALREADY = {r"$\pm$": "±"}
 
 
 def tex_escape(text: Any) -> str:
@@ -247,12 +245,9 @@ def tex_escape(text: Any) -> str:
         Whitespace runs (newlines too) as one space; ``& % $ # _ { }`` with a backslash before,
         a backslash as ``\\textbackslash{}``, ``~ ^ < > |`` as ``\\textasciitilde{}``,
         ``\\textasciicircum{}``, ``\\textless{}``, ... (one pass: an escape is never escaped
-        again); ``±`` and a few other non-ASCII symbols (``σ ² × ≤ ...``) in math. ``$\\pm$``,
-        the LaTeX :mod:`hbench.reproduce` writes for ``±`` in its cells, is read as ``±``.
+        again); ``±`` and a few other non-ASCII symbols (``σ ² × ≤ ...``) in math.
     """
     text = " ".join(str(text).split())
-    for latex, plain in _TEX_ALREADY.items():
-        text = text.replace(latex, plain)
     return _TEX_PATTERN.sub(lambda m: _TEX_SPECIAL[m.group()], text)
 
 

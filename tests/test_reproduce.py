@@ -187,6 +187,44 @@ def test_compare_tables45_on_hand_made_rows():
     assert alt.loc[(4, 1e-3, "snr", "scenario"), "ours"] == pytest.approx(np.mean(snr**2))
 
 
+def _header_and_body(md: str) -> tuple[str, str]:
+    """The bold header line of a display table's Markdown, and the table below it."""
+    header, _, body = md.partition("\n\n")
+    return header, body
+
+
+def test_display_table_headers_agree_with_their_cells(tmp_path):
+    """Table 1's header said "(ours: mean ± std over runs ...)" over cells with no std: the
+    cells are run 0 (one realisation, as the paper's), their spread only behind z."""
+    nan = math.nan
+    cell = dict.fromkeys(CONTRACT_COLUMNS, nan)
+    frame = pd.DataFrame(
+        [
+            {**cell, "table": 1, "row": 2, "column": "3", "method": "wang-lsm"}
+            | {"paper": 1.2e-7, "ours": 1.3e-7, "ours_std": 0.2e-7, "z": 0.5},
+            {**cell, "table": 1, "row": 2, "column": "4", "method": "wang-lsm"}
+            | {"paper": 1.1e-7, "ours": 1.0e-7, "ours_std": 0.1e-7, "z": -1.0},
+            {**cell, "table": 2, "row": 1, "column": "var_dw", "method": "wang-lsm"}
+            | {"paper": 2.0e-7, "ours": 2.1e-7, "ours_std": 0.3e-7, "z": 0.3},
+            {**cell, "table": 4, "row": 1e-3, "column": "a1", "method": "wang-lsm"}
+            | {"paper": -1.9651, "paper_std": 0.0054, "ours": -1.964, "ours_std": 0.005}
+            | {"z": 0.9},
+        ],
+        columns=CONTRACT_COLUMNS,
+    )
+    rp.write_display_tables(frame, tmp_path, realisations=20)
+    for name in ("table1", "table2", "table4"):
+        header, body = _header_and_body((tmp_path / f"{name}.md").read_text())
+        assert ("mean ± std" in header) == ("±" in body), (name, header)
+    header, body = _header_and_body((tmp_path / "table1.md").read_text())
+    assert "run 0, one realisation" in header and "over 20 realisations" in header
+    assert "1.300 (z +0.5)" in body  # the cells themselves are unchanged
+    header, body = _header_and_body((tmp_path / "table2.md").read_text())
+    assert "ours std" in header and "ours std" in body
+    header, body = _header_and_body((tmp_path / "table4.md").read_text())
+    assert "mean ± std over runs" in header and "-1.9640 ± 0.0050" in body
+
+
 def test_investigation_row_counts_moved_cells():
     before = _frame([10.0, 0.5, -4.0, math.nan])
     after = _frame([1.0, 0.5, -6.0, math.nan])
@@ -336,6 +374,9 @@ def test_tables_figures_and_provenance(reproduced):
         assert r"\toprule" in tex and r"\midrule" in tex and r"\bottomrule" in tex
     t4 = (d / "table4.md").read_text()
     assert "±" in t4 and "-1.9651 ± 0.0054" in t4  # the paper's cell beside ours
+    for name in ("table1", "table2", "table4", "snr", "table5"):  # a header says what it shows
+        header, body = _header_and_body((d / f"{name}.md").read_text())
+        assert ("mean ± std" in header) == ("±" in body), (name, header)
     for stem in ("figure4", "figure5"):
         png = (d / f"{stem}.png").read_bytes()
         assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 5000

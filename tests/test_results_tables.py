@@ -198,8 +198,8 @@ def test_tex_escape_every_special_character() -> None:
     assert results.tex_escape("1.0 ± 0.1 at σ² < 2") == (
         r"1.0 \ensuremath{\pm} 0.1 at \ensuremath{\sigma}\ensuremath{^2} \textless{} 2"
     )
-    # hbench.reproduce writes ± as $\pm$ before to_latex: read as ±, not escaped as text
-    assert results.tex_escape(r"1.0 $\pm$ 0.1") == r"1.0 \ensuremath{\pm} 0.1"
+    # LaTeX in a cell is text like any other (callers pass plain text, such as ±)
+    assert results.tex_escape(r"$\pm$") == r"\$\textbackslash{}pm\$"
 
 
 def test_to_latex_escapes_caption_headers_and_cells() -> None:
@@ -225,7 +225,7 @@ def test_tex_files_compile(tmp_path: Path) -> None:
     rows = level_rows(sigma2s=SIGMA2S)
     results.write_tables(rows, tmp_path)
     report.build_report(tmp_path, tmp_path / "report", rows=rows)
-    table = pd.DataFrame({SPECIALS: [SPECIALS, r"1.0 $\pm$ 0.1 σ²"], "x": [1.0, math.nan]})
+    table = pd.DataFrame({SPECIALS: [SPECIALS, "1.0 ± 0.1 σ²"], "x": [1.0, math.nan]})
     (tmp_path / "specials.tex").write_text(results.to_latex(table, caption=SPECIALS))
     report.write_table(tmp_path, "empty", table.iloc[:0], note=SPECIALS, empty=SPECIALS)
     files = sorted(tmp_path.rglob("*.tex"))
