@@ -1,4 +1,5 @@
-"""An example hbench plugin: a quantising actuator and a double-lag plant.
+"""An example hbench plugin: a blind identification method, a quantising actuator and a
+double-lag plant.
 
 Registered through the ``hbench`` entry-point group (see ``pyproject.toml``), or at run time
 with :func:`hbench.plugins.register_module`.
@@ -15,8 +16,9 @@ from hbench.errors import InputError
 from hbench.hookspecs import Register
 from hbench.nonlinearities import Nonlinearity, State
 from hbench.plants import ContinuousPlant
+from hbench_example_plugin.plain_ls import PlainLS
 
-__all__ = ["Quantizer", "double_lag"]
+__all__ = ["PlainLS", "Quantizer", "double_lag"]
 
 
 class Quantizer(Nonlinearity):
@@ -62,6 +64,11 @@ def double_lag(
         raise InputError(f"double-lag: time constants must be > 0, got t1={t1}, t2={t2}")
     den = np.polymul([t1, 1.0], [t2, 1.0])
     return ContinuousPlant((float(gain),), tuple(float(v) for v in den), delay, 0.0, "double-lag")
+
+
+@hbench.hookimpl
+def register_identifiers(register: Register) -> None:
+    register(PlainLS.name, PlainLS)
 
 
 @hbench.hookimpl
