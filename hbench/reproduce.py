@@ -549,6 +549,7 @@ def _custom_rows(
 
     from hbench.identifiers import identify
     from hbench.metrics import SCALINGS, fitnesses
+    from hbench.runner import run_status
     from hbench.simulate import simulate
 
     record, truth = simulate(scenario, runs, np.random.default_rng(seed))
@@ -574,7 +575,7 @@ def _custom_rows(
         q: dict[str, np.ndarray] = dict(est.params())
         F = fitnesses(est.U, truth.U, SCALINGS, gain)
         q["fitness"], q["fitness_ls"], q["fitness_ls_affine"] = F["gain"], F["ls"], F["ls-affine"]
-        status = np.where(est.identifiable, "ok", "not-identifiable")
+        status, _ = run_status(est)  # as the benchmark cells count runs
         for quantity, values in q.items():
             frames.append(
                 pd.DataFrame(
