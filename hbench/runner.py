@@ -92,11 +92,15 @@ NO_ESTIMATE = "the method returned no finite inner-signal estimate U for this ru
 def run_status(est: Estimate) -> tuple[np.ndarray, list[str]]:
     """Each run's status and reason: ``ok``, ``not-identifiable`` (the method's flag and its
     reason), or ``failed`` where the method called the run identifiable but returned no finite
-    sample of ``U`` (a result no metric can score: counted as a failure, not as an ok run)."""
+    sample of ``U`` (a result no metric can score: counted as a failure, not as an ok run), with
+    the method's reason where it gave one (bai-fu's refused unstable inverse), else
+    :data:`NO_ESTIMATE`."""
     ok = np.asarray(est.identifiable, bool)
     empty = ok & ~np.isfinite(est.U).any(axis=1)
     status = np.where(ok, np.where(empty, "failed", "ok"), "not-identifiable")
-    reason = [NO_ESTIMATE if e else str(r) for e, r in zip(empty, est.reason, strict=True)]
+    reason = [
+        (str(r) or NO_ESTIMATE) if e else str(r) for e, r in zip(empty, est.reason, strict=True)
+    ]
     return status, reason
 
 

@@ -206,3 +206,17 @@ def test_diagnose_with_a_broken_method_is_one_line(
     assert len(lines) == 1, stderr
     assert lines[0].startswith(f"hbench diagnose: error: method '{method}' ")
     assert words in lines[0]
+
+
+def test_a_refused_inverse_is_a_failed_run_with_the_methods_reason() -> None:
+    """bai-fu refusing the unstable direct inverse of a non-minimum-phase B returns no U: a
+    failed run whose reason is the method's own (not the generic one), not an ok run."""
+    from hbench.identifiers import REFUSALS
+
+    spec = paper_spec(duration=120.0, plant__name="nmp", plant__delay=1, reference__band=[0.0, 1.0])
+    baifu = registry().get("identifiers", "bai-fu")
+    rows = run_cell(build(spec), {"bai-fu": baifu(inverse="refuse")}, 3, 4).rows
+    fit = rows[rows["quantity"] == "fitness"]
+    refused = fit[fit["error"] == REFUSALS["refused-nmp"]]
+    assert len(refused) and (refused["status"] == "failed").all()
+    assert (fit[fit["status"] == "ok"]["value"].notna()).all()
