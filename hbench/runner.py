@@ -90,18 +90,19 @@ NO_ESTIMATE = "the method returned no finite inner-signal estimate U for this ru
 
 
 def run_status(est: Estimate) -> tuple[np.ndarray, list[str]]:
-    """Each run's status and reason: ``ok``, ``not-identifiable`` (the method's flag and its
-    reason), or ``failed`` where the method called the run identifiable but returned no finite
-    sample of ``U`` (a result no metric can score: counted as a failure, not as an ok run), with
-    the method's reason where it gave one (bai-fu's refused unstable inverse), else
-    :data:`NO_ESTIMATE`."""
+    """Each run's status and reason: ``ok`` (with the method's note, if any), ``not-identifiable``
+    (the method's flag and its reason), or ``failed`` where the method called the run
+    identifiable but returned neither a finite sample of ``U`` nor a reason (a result without
+    an estimate or an explanation: a failure of the method, reason :data:`NO_ESTIMATE`).
+
+    A run without ``U`` whose method says why (bai-fu's refused unstable inverse) stays ``ok``:
+    its parameters, orders and delay are estimates the bias and structure tables count."""
     ok = np.asarray(est.identifiable, bool)
-    empty = ok & ~np.isfinite(est.U).any(axis=1)
+    reasons = [str(r) for r in est.reason]
+    silent = np.array([not r for r in reasons], bool)
+    empty = ok & silent & ~np.isfinite(est.U).any(axis=1)
     status = np.where(ok, np.where(empty, "failed", "ok"), "not-identifiable")
-    reason = [
-        (str(r) or NO_ESTIMATE) if e else str(r) for e, r in zip(empty, est.reason, strict=True)
-    ]
-    return status, reason
+    return status, [NO_ESTIMATE if e else r for e, r in zip(empty, reasons, strict=True)]
 
 
 def _failed_rows(
@@ -240,16 +241,17 @@ def _run_chunk(work: _Work, start: int, n: int) -> tuple[list[tidy.Block], dict[
     frames = []
     for name, method in work.methods.items():
         t0 = time.perf_counter()
-        try:  # a method's failure (or its estimate's) fails its own rows, not the chunk's
+        try:  # a method's failure (or a malformed estimate's) fails its own rows only
             est = identify(method, record, work.options, truth)
-            seconds = time.perf_counter() - t0
-            block = _rows_for(
-                name, est, truth, record, seconds, work.ids, start, work.options.delay_multiple
-            )
         except Exception as exc:
             frames.append(_failed_rows(name, truth, describe(exc), work.ids, start))
             continue
-        frames.append(block)
+        seconds = time.perf_counter() - t0
+        frames.append(
+            _rows_for(
+                name, est, truth, record, seconds, work.ids, start, work.options.delay_multiple
+            )
+        )
         if example:
             example["estimates"][name] = est.U[0].copy()
     return frames, example
