@@ -11,12 +11,11 @@ import importlib
 import json
 import os
 import sys
-import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import NoReturn
 
-from hbench.errors import InputError, MethodError
+from hbench.errors import InputError, MethodError, one_line_warnings
 
 
 class Parser(argparse.ArgumentParser):
@@ -167,17 +166,6 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _one_line_warning(command: str) -> Callable[..., None]:
-    """``warnings.showwarning`` for a command: ``hbench CMD: warning: MESSAGE`` on one line of
-    stderr (Python's default adds the file, line and source line of the call)."""
-
-    def show(message: Warning | str, category: type[Warning], *args: Any, **kwargs: Any) -> None:
-        text = " ".join(str(message).split())
-        print(f"hbench {command}: warning: {text} ({category.__name__})", file=sys.stderr)
-
-    return show
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = Parser(
         prog="hbench",
@@ -255,8 +243,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 0
     try:
-        with warnings.catch_warnings():
-            warnings.showwarning = _one_line_warning(args.command)
+        with one_line_warnings(args.command):
             return int(args.func(args) or 0)
     except InputError as exc:
         msg = " ".join(str(exc).split())

@@ -5,7 +5,12 @@ message on one line and exits with status 2. ``MethodError`` (a plugin that brok
 is printed on one line with status 1. Anything else is an internal error (status 1, traceback).
 """
 
+import contextlib
+import sys
 import traceback
+import warnings
+from collections.abc import Iterator
+from typing import Any
 
 
 class InputError(ValueError):
@@ -46,3 +51,26 @@ def describe(exc: BaseException) -> str:
         last = traceback.extract_tb(exc.__traceback__)[-1]
         where = f" ({last.filename.rsplit('/', 1)[-1]}:{last.lineno})"
     return " ".join(f"{type(exc).__name__}: {exc}{where}".split())
+
+
+@contextlib.contextmanager
+def one_line_warnings(command: str) -> Iterator[None]:
+    """Show warnings as ``hbench COMMAND: warning: MESSAGE (Category)`` on one line of stderr
+    (Python's default adds the file, line and source line of the call) while inside.
+
+    Only ``warnings.showwarning`` is swapped and restored: the filters stay as they are (a
+    module imported inside may add its own, which must outlive the block). The command line
+    wraps every command in it, and a sweep's task too (a launcher's worker process runs it
+    outside the command line's block).
+    """
+    previous = warnings.showwarning
+
+    def show(message: Warning | str, category: type[Warning], *args: Any, **kwargs: Any) -> None:
+        text = " ".join(str(message).split())
+        print(f"hbench {command}: warning: {text} ({category.__name__})", file=sys.stderr)
+
+    warnings.showwarning = show
+    try:
+        yield
+    finally:
+        warnings.showwarning = previous

@@ -303,6 +303,12 @@ def _zero_output_cause(
     return zero, cause
 
 
+def _batch(start: int, runs: int) -> str:
+    """``"run 4"`` or ``"runs 0..199"``: the runs of a batch, for messages (a cell simulated in
+    chunks says which chunk)."""
+    return f"run {start}" if runs == 1 else f"runs {start}..{start + runs - 1}"
+
+
 def _snr(y0: np.ndarray, v: np.ndarray) -> np.ndarray:
     nv = np.linalg.norm(v, axis=-1)
     with np.errstate(divide="ignore"):
@@ -390,9 +396,10 @@ def simulate(
         zero, cause = _zero_output_cause(sc.nonlinearity, y0, x, U)
         if zero.any() and np.all(np.isfinite(y0)):  # legal data (noise only), but say so
             those = "that record is" if zero.sum() == 1 else "those records are"
+            what = "noise only (SNR = 0)" if float(sc.sigma2) > 0 else "all zeros (sigma2 = 0)"
             warnings.warn(
                 f"scenario {sc.name!r}: the noise-free output is zero in {int(zero.sum())} of "
-                f"{runs} runs: {cause}; {those} noise only (SNR = 0)",
+                f"{_batch(start, runs)}: {cause}; {those} {what}",
                 ZeroOutputWarning,
                 stacklevel=2,
             )
@@ -405,9 +412,9 @@ def simulate(
         if zero.any():  # no noise level gives ||y0|| / ||v|| = snr: refuse before scaling
             raise InputError(
                 f"scenario {sc.name!r}: the noise-free output is zero in {int(zero.sum())} of "
-                f"{runs} runs: {cause}: an SNR cannot be set (target {sc.snr:g}); narrow the "
-                "actuator's band, raise the reference amplitude or the controller gain, or "
-                "give sigma2 instead of snr"
+                f"{_batch(start, runs)}: {cause}: an SNR cannot be set (target {sc.snr:g}); "
+                "narrow the actuator's band, raise the reference amplitude or the controller "
+                "gain, or give sigma2 instead of snr"
             )
         # Each run's scale follows its own iteration and freezes once that run has converged,
         # so a run's result does not depend on the other runs of its batch (chunking).

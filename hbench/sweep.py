@@ -490,7 +490,17 @@ def _label(data: dict[str, Any]) -> str:
 
 
 def task(cfg: Any) -> None:
-    """The Hydra task: one cell x the requested methods x R runs into the job's output folder."""
+    """The Hydra task: one cell x the requested methods x R runs into the job's output folder.
+
+    Warnings are shown on one line (:func:`hbench.errors.one_line_warnings`), also in a
+    launcher's worker processes."""
+    from hbench.errors import one_line_warnings
+
+    with one_line_warnings("sweep"):
+        _task(cfg)
+
+
+def _task(cfg: Any) -> None:
     import json
     import os
 

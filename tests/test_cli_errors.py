@@ -218,7 +218,7 @@ def test_simulate_snr_of_an_actuator_that_never_moves_is_one_line(tmp_path: Path
     assert proc.stdout == ""
     line = _one_line_error(proc.stderr, "simulate")
     assert "RuntimeWarning" not in line and "choose a larger SNR" not in line
-    assert "noise-free output is zero in 1 of 1 runs" in line
+    assert "noise-free output is zero in 1 of run 0:" in line
     assert "actuator never moves" in line and "stiction S=0.2" in line
     assert "an SNR cannot be set" in line
     assert not out.exists()
@@ -398,3 +398,29 @@ def test_the_scenarios_periods_are_floats_whatever_number_gave_them() -> None:
     spec.update(T=1, duration=np.int64(60))
     sc = scenarios.build(spec)
     assert type(sc.T) is float and type(sc.duration) is float and type(sc.p) is int
+
+
+def test_one_line_warnings_keeps_filters_added_inside() -> None:
+    """Only ``showwarning`` is swapped: a filter a module adds inside (at its import) outlives
+    the block (``catch_warnings`` threw it away, so a second in-process call warned again)."""
+    import warnings
+
+    from hbench.errors import one_line_warnings
+
+    before = warnings.showwarning
+    with warnings.catch_warnings():  # this test's own sandbox for the filters
+        with one_line_warnings("x"):
+            warnings.filterwarnings("ignore", message="added inside")
+        assert warnings.showwarning is before
+        assert any(f[1] is not None and f[1].pattern == "added inside" for f in warnings.filters)
+
+
+def test_one_line_warnings_format(capsys: pytest.CaptureFixture[str]) -> None:
+    import warnings
+
+    from hbench.errors import one_line_warnings
+
+    with warnings.catch_warnings(), one_line_warnings("simulate"):
+        warnings.simplefilter("always")
+        warnings.warn("two\n lines", UserWarning, stacklevel=1)
+    assert capsys.readouterr().err == "hbench simulate: warning: two lines (UserWarning)\n"

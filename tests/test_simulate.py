@@ -182,7 +182,7 @@ def test_snr_target_with_an_actuator_that_never_moves_is_refused(
         with pytest.raises(InputError) as info:
             simulate(sc, 2, 7)
     msg = str(info.value)
-    assert "noise-free output is zero in 2 of 2 runs" in msg
+    assert "noise-free output is zero in 2 of runs 0..1:" in msg
     assert "actuator never moves" in msg and "stiction S=0.2, J=0.02" in msg
     assert "an SNR cannot be set" in msg
     assert "choose a larger SNR" not in msg and "inf" not in msg
@@ -199,10 +199,14 @@ def test_sigma2_record_of_an_actuator_that_never_moves_warns(
     assert len(caught) == 1
     msg = str(caught[0].message)
     assert "\n" not in msg
-    assert "noise-free output is zero in 2 of 2 runs" in msg and "stiction S=0.5" in msg
+    assert "noise-free output is zero in 2 of runs 0..1:" in msg and "stiction S=0.5" in msg
     assert "noise only (SNR = 0)" in msg
     assert caught[0].filename == __file__  # attributed to the caller, not to simulate.py
     assert np.all(truth.y0 == 0) and np.all(truth.snr == 0)
+    # a later chunk of a cell names its runs; without noise the record is all zeros
+    quiet = make_scenario({"noise.sigma2": 0.0, "nonlinearity": stuck}, duration=100.0)
+    with pytest.warns(ZeroOutputWarning, match=r"zero in 1 of run 7: .* all zeros \(sigma2 = 0\)"):
+        simulate(quiet, 1, 7, start=7)
 
 
 def test_a_moving_actuator_does_not_warn(make_scenario: MakeScenario) -> None:
