@@ -690,16 +690,49 @@ def check_estimate(est: Any, record: Record, name: str) -> None:
         v = getattr(est, field_name)
         if field_name in wanted and np.size(v) and not _whole(v):
             problems.append(f"{field_name} holds values that are not whole numbers")
-    if not isinstance(est.reason, (list, tuple)) or len(est.reason) != R:
-        what = type(est.reason).__name__
-        if isinstance(est.reason, (list, tuple)):
-            what = f"a {what} of {len(est.reason)}"
-        problems.append(f"reason is {what}, expected a list of {R} strings")
+    if not _shape_failed(problems):
+        a_cols, b_cols = np.shape(est.a)[1], np.shape(est.b)[1]
+        if _whole(est.na) and np.size(est.na) and int(np.max(est.na)) > a_cols:
+            problems.append(f"na up to {int(np.max(est.na))} with only {a_cols} columns of a")
+        if _whole(est.nb) and np.size(est.nb) and int(np.max(est.nb)) > b_cols:
+            problems.append(f"nb up to {int(np.max(est.nb))} with only {b_cols} columns of b")
+    reason = est.reason
+    if isinstance(reason, (str, bytes)) or not hasattr(reason, "__len__") or len(reason) != R:
+        what = type(reason).__name__
+        if hasattr(reason, "__len__") and not isinstance(reason, (str, bytes)):
+            what = f"a {what} of {len(reason)}"
+        problems.append(f"reason is {what}, expected one string per run ({R})")
     if problems:
+        runs = "1 run" if R == 1 else f"{R} runs"
         raise MethodError(
-            f"method {name!r} returned an invalid estimate for a record of {R} runs and {K} slow "
+            f"method {name!r} returned an invalid estimate for a record of {runs} and {K} slow "
             f"samples: {'; '.join(problems)}"
         )
+
+
+#: Why a run the method called identifiable is counted as failed.
+NO_ESTIMATE = "the method returned no finite inner-signal estimate U for this run"
+
+
+def run_status(est: Estimate) -> tuple[np.ndarray, list[str]]:
+    """Each run's status and reason: ``ok`` (with the method's note, if any), ``not-identifiable``
+    (the method's flag and its reason), or ``failed`` where the method called the run
+    identifiable but returned neither a finite sample of ``U`` nor a reason (a result without
+    an estimate or an explanation: a failure of the method, reason :data:`NO_ESTIMATE`).
+
+    A run without ``U`` whose method says why (bai-fu's refused unstable inverse) stays ``ok``:
+    its parameters, orders and delay are estimates the bias and structure tables count."""
+    ok = np.asarray(est.identifiable, bool)
+    reasons = [str(r) for r in est.reason]
+    silent = np.array([not r for r in reasons], bool)
+    empty = ok & silent & ~np.isfinite(est.U).any(axis=1)
+    status = np.where(ok, np.where(empty, "failed", "ok"), "not-identifiable")
+    return status, [NO_ESTIMATE if e else r for e, r in zip(empty, reasons, strict=True)]
+
+
+def _shape_failed(problems: list[str]) -> bool:
+    """Whether a shape problem of ``a``, ``b``, ``na`` or ``nb`` is among ``problems``."""
+    return any(p.split(" ", 1)[0] in ("a", "b", "na", "nb") for p in problems)
 
 
 def _whole(v: Any) -> bool:

@@ -547,9 +547,8 @@ def _custom_rows(
     import numpy as np
     import pandas as pd
 
-    from hbench.identifiers import identify
+    from hbench.identifiers import identify, run_status
     from hbench.metrics import SCALINGS, fitnesses
-    from hbench.runner import run_status
     from hbench.simulate import simulate
 
     record, truth = simulate(scenario, runs, np.random.default_rng(seed))

@@ -20,7 +20,7 @@ import pandas as pd
 
 from hbench import tidy
 from hbench.errors import InputError, describe
-from hbench.identifiers import Estimate, Identifier, IdentifyOptions, identify
+from hbench.identifiers import Estimate, Identifier, IdentifyOptions, identify, run_status
 from hbench.metrics import fitnesses
 from hbench.records import Record, Truth
 from hbench.runtime import batch_settings
@@ -83,26 +83,6 @@ def _rows_for(
         values[key] = (params.get(key, np.full(R, np.nan)), tv)
     status, reason = run_status(est)
     return tidy.block(method, ids, start, values, truth.snr, status, reason)
-
-
-#: Why a run the method called identifiable is counted as failed.
-NO_ESTIMATE = "the method returned no finite inner-signal estimate U for this run"
-
-
-def run_status(est: Estimate) -> tuple[np.ndarray, list[str]]:
-    """Each run's status and reason: ``ok`` (with the method's note, if any), ``not-identifiable``
-    (the method's flag and its reason), or ``failed`` where the method called the run
-    identifiable but returned neither a finite sample of ``U`` nor a reason (a result without
-    an estimate or an explanation: a failure of the method, reason :data:`NO_ESTIMATE`).
-
-    A run without ``U`` whose method says why (bai-fu's refused unstable inverse) stays ``ok``:
-    its parameters, orders and delay are estimates the bias and structure tables count."""
-    ok = np.asarray(est.identifiable, bool)
-    reasons = [str(r) for r in est.reason]
-    silent = np.array([not r for r in reasons], bool)
-    empty = ok & silent & ~np.isfinite(est.U).any(axis=1)
-    status = np.where(ok, np.where(empty, "failed", "ok"), "not-identifiable")
-    return status, [NO_ESTIMATE if e else r for e, r in zip(empty, reasons, strict=True)]
 
 
 def _failed_rows(

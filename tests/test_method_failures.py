@@ -18,10 +18,16 @@ import pytest
 
 from hbench.errors import MethodError, describe
 from hbench.hookspecs import hookimpl
-from hbench.identifiers import Identifier, IdentifyOptions, check_estimate, identify
+from hbench.identifiers import (
+    NO_ESTIMATE,
+    Identifier,
+    IdentifyOptions,
+    check_estimate,
+    identify,
+)
 from hbench.plugins import register_module, registry, unregister_module
 from hbench.readers import write_record
-from hbench.runner import NO_ESTIMATE, methods_from_names, run_cell
+from hbench.runner import methods_from_names, run_cell
 from hbench.scenarios import build
 from tests.helpers import paper_spec, sim
 
@@ -156,11 +162,19 @@ def test_check_estimate_names_every_problem() -> None:
         "delay_multiple of shape (2,), expected (3,)",
         "b without b1",
         "tau holds values that are not whole numbers",
-        "reason is str, expected a list of 3 strings",
+        "reason is str, expected one string per run (3)",
     ):
         assert part in text, part
     with pytest.raises(MethodError, match="returned dict, not an"):
         identify(_Returns({}), record, IdentifyOptions())
+    # any sequence of one reason per run will do (an array of strings too)
+    check_estimate(replace(est, reason=np.array(est.reason)), record, "fine")
+    # orders beyond the coefficients given, and a one-run record's wording
+    with pytest.raises(MethodError, match="na up to 9 with only"):
+        check_estimate(replace(est, na=np.full(3, 9)), record, "mine")
+    one, _ = sim(runs=1, seed=1, duration=120.0)
+    with pytest.raises(MethodError, match="a record of 1 run and"):
+        check_estimate(est, one, "mine")
 
 
 class _Returns(Identifier):
@@ -194,6 +208,7 @@ def record_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
         ("test-badshape", "returned an invalid estimate"),
         ("test-none", "returned NoneType"),
         ("test-raises", "failed: ZeroDivisionError: plugin bug (test_method_failures.py:"),
+        ("test-nan", "failed: the method returned no finite inner-signal estimate"),
     ],
 )
 def test_diagnose_with_a_broken_method_is_one_line(

@@ -71,7 +71,7 @@ import numpy as np
 
 from hbench.diagnose import classes, core
 from hbench.errors import InputError, MethodError, describe
-from hbench.identifiers import Estimate, IdentifyOptions, identify
+from hbench.identifiers import Estimate, IdentifyOptions, identify, run_status
 from hbench.records import Record
 
 #: Denominator orders of the nominal blind model (the ``order`` effect goes beyond).
@@ -271,8 +271,11 @@ def identify_blind(
         raise
     except Exception as exc:  # the method's own failure: one line naming it, not a traceback
         raise MethodError(f"method {method!r} failed: {describe(exc)}") from exc
-    if not bool(est.identifiable[0]) or np.all(np.isnan(est.U[0])):
-        why = est.reason[0] or "no inner-signal estimate"
+    status, reason = run_status(est)
+    if status[0] == "failed":  # identifiable, yet neither an estimate nor a reason: the method's
+        raise MethodError(f"method {method!r} failed: {reason[0]}")
+    if status[0] != "ok" or np.all(np.isnan(est.U[0])):
+        why = reason[0] or "no inner-signal estimate"
         raise InputError(f"the blind method {method!r} cannot identify this record: {why}")
     return est
 
