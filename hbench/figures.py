@@ -346,11 +346,12 @@ def _common_ylim(series: Sequence[Any]) -> tuple[float, float] | None:
 
 
 def time_per_method(stats: Any, label: Callable[[str], str]) -> Any:
-    """Mean time per run (s) per method, error bars one std between batches; log axis.
+    """Mean time per run (s) per method, error bars one std over its runs; log axis.
 
     A run's time is its batch's time divided by the runs in the batch (the runs of a chunk are
-    identified together), so the runs of one batch share one value: the std is the spread
-    between batches (cells, and chunks of a cell), not between the runs of a batch.
+    identified together), so the runs of one batch share one value: the std over the runs
+    measures the spread between batches (cells, and chunks of a cell), each weighted by its
+    runs; one batch gives 0.
 
     Parameters
     ----------
@@ -378,7 +379,8 @@ def time_per_method(stats: Any, label: Callable[[str], str]) -> Any:
     ax.set_yticks(y, [label(m) for m in s["method"]])
     _log(ax, "x")
     ax.set_xlabel(
-        "identification time per run (s) = batch time / runs\nerror bar: one std between batches"
+        "identification time per run (s) = batch time / runs\n"
+        "error bar: one std over runs (a batch's runs share its value)"
     )
     ax.grid(axis="y", visible=False)
     return fig

@@ -494,10 +494,11 @@ def _esc(x: Any) -> str:
 def html_table(table: Any, floatfmt: str = ".4g", table_id: str | None = None) -> str:
     cols = list(table.columns)
 
+    from hbench.results import format_number
+
     def fmt(v: Any) -> str:
-        if isinstance(v, float):
-            return "" if math.isnan(v) else format(v, floatfmt)
-        return str(v)
+        number = format_number(v, floatfmt)
+        return str(v) if number is None else number
 
     ident = f' id="{_esc(table_id)}"' if table_id else ""
     head = "".join(f"<th>{_esc(c)}</th>" for c in cols)
@@ -765,7 +766,8 @@ def build_report(
             "fig-time",
             (out / "time", "time_per_method", (stats["timing"], method_label), {}),
             "Identification time per run: a batch's time divided by its runs (the runs of a "
-            "batch share one value), mean ± one std between batches (cells and chunks).",
+            "batch share one value), mean ± one std over the runs (so the spread between "
+            "batches, cells and chunks, each weighted by its runs).",
             missing("fig-time", "no time per method to draw", "No ok run has a time"),
         ),
         (

@@ -258,8 +258,9 @@ def _is_missing(v: Any) -> bool:
     return isinstance(v, float | np.floating) and bool(np.isnan(v))
 
 
-def _cell(v: Any, floatfmt: str) -> str | None:
-    """A number formatted for a table (missing: ``""``), or None for a text cell."""
+def format_number(v: Any, floatfmt: str) -> str | None:
+    """A number formatted for a table cell (an empty number, nan or NA: ``""``), or None for a
+    text cell. The Markdown, LaTeX and HTML renderings all format numbers with it."""
     if _is_missing(v):
         return ""
     if isinstance(v, float | np.floating):
@@ -285,7 +286,7 @@ def to_markdown(table: pd.DataFrame, floatfmt: str = ".4g") -> str:
     cols = list(table.columns)
 
     def fmt(v: Any) -> str:
-        number = _cell(v, floatfmt)
+        number = format_number(v, floatfmt)
         return str(v) if number is None else number
 
     lines = ["| " + " | ".join(map(str, cols)) + " |", "|" + "|".join("---" for _ in cols) + "|"]
@@ -314,7 +315,7 @@ def to_latex(table: pd.DataFrame, caption: str = "", floatfmt: str = ".4g") -> s
     cols = list(table.columns)
 
     def fmt(v: Any) -> str:
-        number = _cell(v, floatfmt)
+        number = format_number(v, floatfmt)
         return tex_escape(v) if number is None else number
 
     out = [
