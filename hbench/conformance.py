@@ -302,6 +302,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0 if names else 2
     status = 0
     for name in names:
+        if name not in registry().names("identifiers"):
+            known = ", ".join(registry().names("identifiers"))
+            print(f"FAIL {name}: no registered method of that name (known: {known})")
+            status = 1
+            continue
         for check in CHECKS:
             try:
                 why = run_check(name, check)

@@ -120,11 +120,11 @@ class PlainLS(Identifier):
                 continue
 
             # 3. U: eq. (27), least squares over the SIMO blocks (26) of w, solved in O(K)
-            sys = pp.simo_system(w[good], p, tau, t_min=na)
+            simo = pp.simo_system(w[good], p, tau, t_min=na)
             h0, h1 = pp.simo_channels(bb[good], p)
-            U_tilde = pp.inner_signal_ls(sys, h0, h1)  # U~(n0 - 1 ..)
+            U_tilde = pp.inner_signal_ls(simo, h0, h1)  # U~(n0 - 1 ..)
             # on the record's slow grid, shifted by the delay's known multiple of p (A3)
-            U[idx[good]] = pp.align(U_tilde, sys.n0 - 1, options.delay_multiple, K)
+            U[idx[good]] = pp.align(U_tilde, simo.n0 - 1, options.delay_multiple, K)
 
         return Estimate(
             method=self.name,
