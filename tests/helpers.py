@@ -2,14 +2,17 @@
 
 from __future__ import annotations
 
+import contextlib
 import copy
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
 
 from hbench import scenarios
-from hbench.identifiers import Estimate, IdentifyOptions, identify
-from hbench.plugins import registry
+from hbench.hookspecs import hookimpl
+from hbench.identifiers import Estimate, Identifier, IdentifyOptions, identify
+from hbench.plugins import register_module, registry, unregister_module
 from hbench.records import Record, Truth
 from hbench.simulate import simulate
 
@@ -72,3 +75,21 @@ def run_method(
 ) -> Estimate:
     cls = registry().get("identifiers", name)
     return identify(cls(**method_options), record, options or IdentifyOptions(), truth)
+
+
+@contextlib.contextmanager
+def registered_methods(plugin_name: str, *classes: type[Identifier]) -> Iterator[None]:
+    """Register throwaway methods (under their ``name``) as a plugin while inside."""
+
+    class Plugin:
+        @hookimpl
+        def register_identifiers(self, register: Any) -> None:
+            for cls in classes:
+                register(cls.name, cls)
+
+    plugin = Plugin()
+    register_module(plugin, name=plugin_name)
+    try:
+        yield
+    finally:
+        unregister_module(plugin)

@@ -17,7 +17,6 @@ import numpy as np
 import pytest
 
 from hbench.errors import MethodError, describe
-from hbench.hookspecs import hookimpl
 from hbench.identifiers import (
     NO_ESTIMATE,
     Identifier,
@@ -25,11 +24,11 @@ from hbench.identifiers import (
     check_estimate,
     identify,
 )
-from hbench.plugins import register_module, registry, unregister_module
+from hbench.plugins import registry
 from hbench.readers import write_record
 from hbench.runner import methods_from_names, run_cell
 from hbench.scenarios import build
-from tests.helpers import paper_spec, sim
+from tests.helpers import paper_spec, registered_methods, sim
 
 RunCli = Callable[[Sequence[str]], tuple[int, str, str]]
 
@@ -78,21 +77,10 @@ class Raises(Identifier):
 BROKEN = (BadShape, ReturnsNone, AllNan, Raises)
 
 
-class BrokenPlugin:
-    @hookimpl
-    def register_identifiers(self, register: Any) -> None:
-        for cls in BROKEN:
-            register(cls.name, cls)
-
-
 @pytest.fixture
 def broken() -> Iterator[None]:
-    plugin = BrokenPlugin()
-    register_module(plugin, name="broken-methods-test")
-    try:
+    with registered_methods("broken-methods-test", *BROKEN):
         yield
-    finally:
-        unregister_module(plugin)
 
 
 def _cell(methods: dict[str, Identifier]) -> Any:

@@ -24,11 +24,10 @@ import pytest
 from hbench import config, results
 from hbench.callbacks import aggregate_dir
 from hbench.errors import InputError
-from hbench.hookspecs import hookimpl
 from hbench.identifiers import Identifier
-from hbench.plugins import register_module, registry, unregister_module
+from hbench.plugins import registry
 from hbench.sweep import DONE, EXAMPLE, ROW_COLUMNS, ROWS, validate
-from tests.helpers import BIAS_COLUMNS, FITNESS_COLUMNS
+from tests.helpers import BIAS_COLUMNS, FITNESS_COLUMNS, registered_methods
 
 pytestmark = pytest.mark.filterwarnings(f"ignore:{config.SCHEMA_NOTE}:UserWarning")
 
@@ -157,20 +156,10 @@ class Boom(Identifier):
         return registry().get("identifiers", "wang-lsm")().identify(record, options, truth)
 
 
-class BoomPlugin:
-    @hookimpl
-    def register_identifiers(self, register: Any) -> None:
-        register(Boom.name, Boom)
-
-
 @pytest.fixture
 def boom() -> Iterator[str]:
-    plugin = BoomPlugin()
-    register_module(plugin, name="boom-test")
-    try:
+    with registered_methods("boom-test", Boom):
         yield Boom.name
-    finally:
-        unregister_module(plugin)
 
 
 def test_a_raising_method_gives_failed_rows_and_the_sweep_goes_on(
