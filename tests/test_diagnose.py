@@ -98,6 +98,33 @@ def test_generator_is_deterministic() -> None:
     assert np.array_equal(a.y, b.y) and np.array_equal(a.x, b.x)
 
 
+@pytest.mark.xfail(
+    strict=True,
+    reason="known false alarm: drift and time-varying judged on the simulation residual fire on "
+    "the paper example's slow equation noise (docs/experiments/noise-model-domain.md)",
+)
+@pytest.mark.parametrize(("cls", "seed"), [("linear", 100), ("stiction", 101)])
+def test_paper_example_is_not_a_drift_or_a_change(cls: str, seed: int) -> None:
+    """The ``hbench simulate`` defaults (the paper's Section 6 loop, its slow equation noise
+    ``e / A`` starting from rest) hold no hidden effect, so the cause should be ``none``. Today
+    time-varying fires on both records (3.3 and 2.4 against 1) and drift on the second (10.5
+    against 8; 7.0 on the first), and the cause is ``unexplained``. Judging both in the noise
+    model's innovations removed the false alarms but lost two time-varying calibration
+    records, against its pre-registered criterion, and was not adopted. Strict: a fix turns
+    this into a failure to be updated."""
+    from hbench import scenarios
+    from hbench.diagnose.validate import diagnose
+    from hbench.simulate import simulate
+
+    spec = {**scenarios.PAPER_SECTION6, "nonlinearity": {"name": cls}}
+    rec, _ = simulate(scenarios.build(spec), 1, np.random.default_rng(seed))
+    with np.errstate(all="ignore"):
+        d = diagnose(rec)
+    fired = {det.name for det in d.detections if det.fired}
+    assert not fired & {"drift", "time-varying"}
+    assert d.cause == "none"
+
+
 def test_loop_generator_makes_plant_logs() -> None:
     case = generator.draw_loop_case(5, "stiction", "flow", "external")
     a = generator.simulate_loop(case)
