@@ -3,19 +3,31 @@
 Run with ``.venv/bin/pytest benchmarks --benchmark-only -k bench_sweep``. The joblib case records
 ``speedup`` = basic time / joblib time (the fastest of :data:`ROUNDS` rounds each) in
 ``extra_info``. Each job is heavy enough (the paper's 500 s record, 4 methods, 3000 runs: about
-5 s of work; 600 runs took 4 s before session 5's speed-ups and 2 s after, 1000 runs 2 s after
-session 6's, when CI measured 1.29x; 2000 runs gave 1.35-1.57x in session 7's CI runs, after its
-speed-ups) that the per-job Hydra overhead (~0.4 s, paid by both
-launchers) and the start-up of the worker processes (~3 s, joblib only) do not dominate: two
-processes run ~1.45x as fast as one on this 2-vCPU machine, so with 16 x 2 s of work the start-up
-alone holds joblib near 1.3x. The whole ``hbench sweep`` command is timed in a fresh process,
-as a user runs it.
+6 s of work; 600 runs took 4 s before session 5's speed-ups and 2 s after, 1000 runs 2 s after
+session 6's) that the per-job Hydra overhead (~0.4 s, paid by both launchers) and the start-up
+of the worker processes (~3 s, joblib only) do not dominate. The whole ``hbench sweep`` command
+is timed in a fresh process, as a user runs it.
 
 Both runs use one BLAS thread per process (``OPENBLAS_NUM_THREADS=1``), which is what joblib's
 loky workers get on their own (it caps them at cores / n_jobs): the ratio then measures the
 launcher, not BLAS. With the default threads the basic launcher already spreads the batched
 matrix products of the simulation over both cores (about 20 % faster per job), which caps the
 joblib speed-up near 1.6x on 2 cores.
+
+What the launcher controls and what the machine does are told apart. The speed-up is the product of
+two factors, both recorded in ``extra_info``: ``cores_busy``, the CPU seconds of the joblib sweep
+(its process and its workers) per wall second, which is how well the launcher keeps two workers fed
+(start-up, the Hydra overhead in the parent and the last job's tail cost it), and ``cpu_ratio``, the
+basic sweep's CPU seconds over the joblib sweep's for the same work, which is how much slower each
+process computes while another runs beside it (shared caches, memory bandwidth, and on this shared
+virtual machine the host's other tenants, which no counter inside it shows). Two runs of this
+benchmark on the same code (5198fa1), the machine otherwise idle (``foreign_cores`` 0.02),
+2026-11-23: basic 97 s (97 CPU-s), joblib 76 s (128 CPU-s): 1.68 cores busy x 0.76 = 1.28x (a CI
+run); later basic 120 s (120 CPU-s), joblib 73 s (124 CPU-s): 1.70 x 0.97 = 1.64x. The launcher's
+factor held; the machine's moved by a quarter. So the checks are on the launcher: joblib keeps at
+least 1.5 cores busy (a launcher that ran the jobs one after another keeps ~1) and is faster than
+basic at all; the speed-up itself is reported, not asserted (the earlier check, > 1.3x, failed on
+the first of those runs).
 """
 
 from __future__ import annotations
@@ -120,14 +132,23 @@ def test_sweep_16_jobs(benchmark: BenchmarkFixture, tmp_path: Path, launcher: st
         launcher=launcher, jobs=16, cores=os.cpu_count(), blas_threads=1, **_runs[launcher]
     )
     if launcher == "joblib" and "basic" in _seconds:
-        speedup = _seconds["basic"] / seconds
-        foreign = max(_runs["basic"]["foreign_cores"], _runs["joblib"]["foreign_cores"])
+        basic, joblib = _runs["basic"], _runs["joblib"]
+        speedup = basic["wall"] / joblib["wall"]  # the fastest round of each
+        cores_busy = joblib["cpu"] / joblib["wall"]  # the launcher's factor
+        cpu_ratio = basic["cpu"] / joblib["cpu"]  # the machine's: speedup = cores_busy x this
+        foreign = max(basic["foreign_cores"], joblib["foreign_cores"])
         benchmark.extra_info.update(
-            speedup=speedup, basic_seconds=_seconds["basic"], max_foreign_cores=foreign
+            speedup=speedup,
+            basic_seconds=basic["wall"],
+            cores_busy=cores_busy,
+            cpu_ratio=cpu_ratio,
+            max_foreign_cores=foreign,
         )
         print(
-            f"\nsweep speed-up joblib(n_jobs=2) vs basic: {speedup:.2f}x "
+            f"\nsweep speed-up joblib(n_jobs=2) vs basic: {speedup:.2f}x = {cores_busy:.2f} "
+            f"cores kept busy x {cpu_ratio:.2f} (one process's CPU per job over two's) "
             f"(other processes used up to {foreign:.2f} cores meanwhile)"
         )
         if (os.cpu_count() or 1) >= 2 and foreign < 0.2:  # only on an otherwise idle machine
-            assert speedup > 1.3, f"joblib barely helps: {speedup:.2f}x"
+            assert speedup > 1.0, f"joblib is slower than the basic launcher: {speedup:.2f}x"
+            assert cores_busy > 1.5, f"joblib keeps only {cores_busy:.2f} of 2 cores busy"
