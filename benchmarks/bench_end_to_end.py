@@ -98,19 +98,24 @@ per-shift ``v' M v`` einsums ~0.02 s), the IV products ~0.06 s (half of it gathe
 ~0.1 s, the fitness ~0.03 s, tidy rows ~0.04 s (pyarrow's string ``take``). 3000 runs/s (~0.47 ms
 of CPU per run at this machine's 1.3-1.5x two-process scaling) is still not met.
 
-Session 9 (2026-11-23): every ``test_end_to_end`` round records its CPU seconds (this process,
-reaped children and the kept workers, from /proc) and page faults, and the ``jobs=2`` case
-splits its speed-up into cores kept busy x one process's CPU per run over two's;
-``test_two_independent_processes`` runs two fresh processes side by side, the machine's own
-two-process throughput on this workload (no fork, nothing shared). Measured before this
-session's change: one process 1168 runs/s, ``jobs=2`` 1506 (1.83 cores busy x 0.70; 37 879 page
-faults per cell), two independent processes 1943 (CPU per run 19 % above alone), so ``jobs=2``
-reached 78 % of what the machine gave two processes: the rest was the fork per cell, after which
-every page of the parent's retained heap is copy-on-write in both processes. With the workers
-forked once and kept (:func:`hbench.runner.close_workers`): one process 965 runs/s (a slow
-phase), ``jobs=2`` 1643 (1.89 cores x 0.90; 732 faults per cell), two independent processes 1845
-(89 %). Interleaved best-of-5 against 5198fa1: 1772-1836 against 1425-1611 runs/s with
-``jobs=2``, rows byte-identical. 3000 runs/s now needs ~0.5 ms of CPU per run.
+Session 9 (2026-11-23): every ``test_end_to_end`` round records its CPU seconds (this process
+and its reaped children) and page faults, and the ``jobs=2`` case splits its speed-up into cores
+kept busy x one process's CPU per run over two's; ``test_two_independent_processes`` runs two
+fresh processes side by side, the machine's own two-process throughput on this workload (no
+fork, nothing shared). One run: one process 1168 runs/s, ``jobs=2`` 1506 (1.83 cores busy x
+0.70; 37 879 page faults per cell against ~2 000 in one process), two independent processes 1943
+(CPU per run 19 % above alone): ``jobs=2`` reached 78 % of what the machine gave two processes.
+The rest is the fork per cell: afterwards every page of the parent's retained heap is
+copy-on-write in both processes. Workers forked once and kept between cells were tried: 732
+faults per cell, 1.89 cores x 0.90, 89 % of the pair's rate, and interleaved best-of-5 against
+5198fa1 1772-1836 against 1425-1611 runs/s with ``jobs=2``, rows byte-identical. Not kept: a
+review found that kept workers run the code and module state of the moment they were forked
+(a class redefined in a notebook or a patched function gave one cell rows from old and new
+code), and that a kept worker killed while idle (the OOM killer, a plain ``os.fork`` child's
+exit handler) left the next cell waiting forever on ``multiprocessing.Pool``. A version would
+need ``concurrent.futures`` (a dead worker raises ``BrokenProcessPool``), the work sent once per
+worker and cell, and kept workers only inside an explicit scope (a sweep process), never by
+default.
 """
 
 from __future__ import annotations
@@ -129,7 +134,7 @@ import numpy as np
 import pytest
 from pytest_benchmark.fixture import BenchmarkFixture
 
-from hbench import kernels, runner
+from hbench import kernels
 from hbench.runner import methods_from_names, run_cell
 from hbench.simulate import Scenario
 
@@ -150,21 +155,12 @@ def _batched_fitness(rows) -> dict[str, np.ndarray]:
 
 
 def _usage() -> tuple[float, int]:
-    """CPU seconds and minor page faults so far of this process, its reaped children and the
-    worker processes :func:`hbench.runner.run_cell` keeps between cells (read from /proc)."""
+    """CPU seconds and minor page faults so far of this process and its reaped children (the
+    worker processes of a ``jobs > 1`` cell are reaped when the cell ends)."""
     me = resource.getrusage(resource.RUSAGE_SELF)
     kids = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
-    faults = me.ru_minflt + kids.ru_minflt
-    kept = runner._WORKERS
-    for worker in kept[2]._pool if kept is not None else ():
-        try:  # fields after the name: state, ..., minflt (10th), ..., utime, stime (14th, 15th)
-            stat = Path(f"/proc/{worker.pid}/stat").read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        cpu += (int(stat[11]) + int(stat[12])) / os.sysconf("SC_CLK_TCK")
-        faults += int(stat[7])
-    return cpu, faults
+    return cpu, me.ru_minflt + kids.ru_minflt
 
 
 @pytest.mark.parametrize("jobs", [1, 2])
@@ -176,7 +172,7 @@ def test_end_to_end(benchmark: BenchmarkFixture, paper_scenario: Scenario, jobs:
     def cell():
         (cpu0, flt0), t0 = _usage(), time.perf_counter()
         res = run_cell(paper_scenario, methods, runs, SEED, jobs=jobs)
-        wall, (cpu1, flt1) = time.perf_counter() - t0, _usage()  # the pool's workers are reaped
+        wall, (cpu1, flt1) = time.perf_counter() - t0, _usage()
         usage.append((wall, cpu1 - cpu0, flt1 - flt0))
         return res
 
@@ -222,7 +218,7 @@ _PAIR_SCRIPT = textwrap.dedent(
         c0, t0 = time.process_time(), time.perf_counter()
         run_cell(sc, methods, 1000, {seed})
         out.append((time.perf_counter() - t0, time.process_time() - c0))
-    print(json.dumps({{"late": late, "cells": out}}))
+    print(json.dumps({{"late": late, "cells": out, "end": time.time()}}))
     """
 )
 
@@ -235,10 +231,12 @@ def test_two_independent_processes(benchmark: BenchmarkFixture) -> None:
     two-process scaling."""
     cells = 3
 
+    start = 0.0
+
     def run() -> list[dict[str, Any]]:
-        script = _PAIR_SCRIPT.format(
-            methods=METHODS, seed=SEED, cells=cells, start=time.time() + 8.0
-        )
+        nonlocal start
+        start = time.time() + 8.0
+        script = _PAIR_SCRIPT.format(methods=METHODS, seed=SEED, cells=cells, start=start)
         procs = [
             subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
             for _ in range(2)
@@ -250,9 +248,10 @@ def test_two_independent_processes(benchmark: BenchmarkFixture) -> None:
     pair = benchmark.pedantic(run, rounds=1, iterations=1)
     if max(p["late"] for p in pair) > 0:
         pytest.skip("a process was not ready at the common start (machine too slow or busy)")
-    walls = np.array([[w for w, _ in p["cells"]] for p in pair])
     cpus = np.array([[c for _, c in p["cells"]] for p in pair])
-    rate = float(2 * 1000 / walls.mean())  # both computed throughout: cells run side by side
+    # all runs over the span from the common start to the last process's end: if one process
+    # finishes first, the other's tail runs alone, so this errs low (and jobs=2's share, high)
+    rate = float(2 * cells * 1000 / (max(p["end"] for p in pair) - start))
     cpu_ms = float(cpus.mean())  # seconds per 1000-run cell = ms per run
     benchmark.extra_info.update(
         runs_per_second=rate, cpu_ms_per_run=cpu_ms, runs=2 * cells * 1000, methods=METHODS

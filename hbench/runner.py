@@ -9,8 +9,6 @@ the truth, and writes one row per run x method x quantity. A method that raises 
 from __future__ import annotations
 
 import multiprocessing as mp
-import os
-import pickle
 import time
 import traceback
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -20,7 +18,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from hbench import kernels, tidy
+from hbench import tidy
 from hbench.errors import InputError, describe
 from hbench.identifiers import Estimate, Identifier, IdentifyOptions, identify, run_status
 from hbench.metrics import fitnesses
@@ -134,10 +132,9 @@ def run_cell(
     keep_example : bool
         Keep run 0's x, true U and each method's U for plots.
     jobs : int
-        Processes computing the chunks: this one and ``jobs - 1`` workers, forked on first use
-        and kept for later cells (:func:`close_workers`). The rows are the same whatever
-        ``jobs`` (but for the ``seconds`` quantity). With ``jobs > 1`` the cell is cut into a
-        multiple of ``jobs`` chunks of near-equal size (at most ``chunk`` runs each).
+        Processes computing the chunks: this one and ``jobs - 1`` forked workers. The rows are
+        the same whatever ``jobs`` (but for the ``seconds`` quantity). With ``jobs > 1`` the cell
+        is cut into a multiple of ``jobs`` chunks of near-equal size (at most ``chunk`` runs each).
 
     Notes
     -----
@@ -241,99 +238,32 @@ def _run_chunk(work: _Work, start: int, n: int) -> tuple[list[tidy.Block], dict[
 
 
 _FORKED: _Work | None = None
-#: The worker processes kept between cells: (the process that made them, their number, the pool).
-_WORKERS: tuple[int, int, Any] | None = None
-
-
-def _guarded(work: _Work, start: int, n: int) -> tuple[list[tidy.Block], dict[str, Any]]:
-    """:func:`_run_chunk` in a worker process, its errors made safe to send back."""
-    try:
-        return _run_chunk(work, start, n)
-    except InputError:
-        raise  # hbench's own errors travel back intact (one-line messages, exit status 2)
-    except BaseException as exc:  # an exception that cannot be unpickled would hang the pool
-        raise RuntimeError(
-            f"runs {start}..{start + n - 1} failed in a worker process:\n"
-            + "".join(traceback.format_exception(exc))
-        ) from None
 
 
 def _forked_chunk(piece: tuple[int, int]) -> tuple[list[tidy.Block], dict[str, Any]]:
     assert _FORKED is not None
-    return _guarded(_FORKED, *piece)
-
-
-def _pooled_chunk(
-    task: tuple[bytes, str, int, int],
-) -> tuple[list[tidy.Block], dict[str, Any]] | None:
-    """A chunk in a kept worker: the cell's work arrives pickled with the parent's kernel
-    backend; ``None`` when this process cannot unpickle the work (a class the parent defined
-    after the worker was forked), and the parent then computes the chunk itself."""
-    blob, backend, start, n = task
     try:
-        work = pickle.loads(blob)
-    except Exception:
-        return None
-    with kernels.use(backend), batch_settings():
-        return _guarded(work, start, n)
-
-
-def _workers(size: int) -> Any:
-    """``size`` worker processes, forked on first use and kept for later cells of this process
-    (a process forked from it makes its own)."""
-    global _WORKERS
-    pid = os.getpid()
-    if _WORKERS is not None:
-        owner, n, pool = _WORKERS
-        if owner == pid and n == size:
-            return pool
-        _WORKERS = None
-        if owner == pid:
-            pool.terminate()
-    pool = mp.get_context("fork").Pool(size)
-    _WORKERS = (pid, size, pool)
-    return pool
-
-
-def close_workers() -> None:
-    """Stop the worker processes that ``run_cell(..., jobs > 1)`` keeps between cells (they
-    also stop when the interpreter exits). The next such cell forks new ones, which see this
-    process as it is then."""
-    global _WORKERS
-    if _WORKERS is not None:
-        owner, _, pool = _WORKERS
-        _WORKERS = None
-        if owner == os.getpid():
-            pool.terminate()
-            pool.join()
-
-
-def _portable(work: _Work) -> bytes | None:
-    """``work`` pickled for a kept worker, or ``None`` if it cannot be (a method defined inside
-    a function, a lambda in its options): such cells fork their workers afresh."""
-    try:
-        return pickle.dumps(work, protocol=pickle.HIGHEST_PROTOCOL)
-    except Exception:
-        return None
+        return _run_chunk(_FORKED, *piece)
+    except InputError:
+        raise  # hbench's own errors travel back intact (one-line messages, exit status 2)
+    except BaseException as exc:  # an exception that cannot be unpickled would hang the pool
+        raise RuntimeError(
+            f"runs {piece[0]}..{piece[0] + piece[1] - 1} failed in a worker process:\n"
+            + "".join(traceback.format_exception(exc))
+        ) from None
 
 
 def _map_chunks(
     work: _Work, pieces: list[tuple[int, int]], jobs: int
 ) -> Iterator[tuple[list[tidy.Block], dict[str, Any]]]:
-    """Chunks in order; with ``jobs > 1`` computed by this process and ``jobs - 1`` worker
-    processes.
+    """Chunks in order; with ``jobs > 1`` computed by this process and ``jobs - 1`` forked
+    worker processes.
 
-    This process takes every ``jobs``-th chunk itself, the workers the others, and the chunks
+    This process takes every ``jobs``-th chunk itself (its memory is warm: a fresh worker's
+    first chunk pays ~20 000 copy-on-write page faults), the workers the others, and the chunks
     come back in order. Every run draws from its own stream and its numbers do not depend on
     the runs batched with it, so the rows do not depend on ``jobs`` (only the ``seconds``
     quantity does).
-
-    The workers are forked once and kept for later cells (:func:`close_workers` stops them);
-    the cell's work reaches them pickled (~2 kB), with the kernel backend in force here.
-    Forking afresh for every cell, as before, cost ~20 000 copy-on-write page faults in each
-    process per cell (after a fork every page of this process's retained heap is shared until
-    written), measured at 0.70 of one process's CPU per run against 0.84 for two independent
-    processes; work that cannot be pickled still takes that route.
     """
     global _FORKED
     if jobs <= 1 or len(pieces) < 2 or "fork" not in mp.get_all_start_methods():
@@ -343,28 +273,14 @@ def _map_chunks(
     jobs = min(jobs, len(pieces))
     mine = set(range(0, len(pieces), jobs))
     theirs = [piece for i, piece in enumerate(pieces) if i not in mine]
-    blob = _portable(work)
-    if blob is None:
-        _FORKED = work
-        try:
-            with mp.get_context("fork").Pool(jobs - 1) as pool:
-                done = pool.imap(_forked_chunk, theirs)  # dispatched at once, computed meanwhile
-                for i, piece in enumerate(pieces):
-                    yield _run_chunk(work, *piece) if i in mine else next(done)
-        finally:
-            _FORKED = None
-        return
-    backend = "numpy" if kernels.backend() == "numpy" else "auto"
-    finished = False
+    _FORKED = work
     try:
-        kept = _workers(jobs - 1).imap(_pooled_chunk, [(blob, backend, *p) for p in theirs])
-        for i, piece in enumerate(pieces):
-            out = None if i in mine else next(kept)
-            yield _run_chunk(work, *piece) if out is None else out
-        finished = True
+        with mp.get_context("fork").Pool(jobs - 1) as pool:
+            done = pool.imap(_forked_chunk, theirs)  # dispatched at once, computed meanwhile
+            for i, piece in enumerate(pieces):
+                yield _run_chunk(work, *piece) if i in mine else next(done)
     finally:
-        if not finished:  # an error or an abandoned cell: no worker goes on with its chunks
-            close_workers()
+        _FORKED = None
 
 
 def methods_from_names(

@@ -286,64 +286,8 @@ def test_a_worker_failure_reaches_the_parent(monkeypatch):
 
     monkeypatch.setattr(runner, "_run_chunk", broken)
     sc = scenarios.build(paper_spec(duration=60.0))
-    runner.close_workers()  # workers forked from here on see the broken chunk
-    try:
-        with pytest.raises(RuntimeError, match="plugin broke"):
-            runner.run_cell(sc, runner.methods_from_names(["wang-lsm"]), 4, 0, jobs=2, chunk=2)
-        assert runner._WORKERS is None  # the failed cell's workers were stopped
-    finally:
-        runner.close_workers()  # later tests' workers must not inherit the patch
-
-
-def test_kept_workers_serve_later_cells_and_unpicklable_methods_still_run():
-    """Workers are forked once per process and kept between cells (the rows stay those of one
-    process); a method that cannot be pickled (a class defined in a function) makes its cell
-    fork workers afresh, with the same rows."""
-    import pandas as pd
-
-    from hbench import runner, scenarios
-    from hbench.identifiers import Identifier
-    from tests.helpers import paper_spec
-
-    sc = scenarios.build(paper_spec(duration=60.0))
-    lsm = runner.methods_from_names(["wang-lsm"])["wang-lsm"]
-
-    class Local(Identifier):  # not importable by name: cannot be pickled
-        name = "local"
-
-        def identify(self, record, options, truth=None):
-            return lsm.identify(record, options, truth)
-
-    def rows(methods, **kw):
-        r = runner.run_cell(sc, methods, 6, 5, **kw).rows
-        r = r[r["quantity"] != "seconds"].drop(columns="method")
-        return r.sort_values(["run", "quantity"]).reset_index(drop=True)
-
-    runner.close_workers()
-    one = rows({"wang-lsm": lsm})
-    two = rows({"wang-lsm": lsm}, jobs=2, chunk=3)
-    assert runner._WORKERS is not None
-    kept = [w.pid for w in runner._WORKERS[2]._pool]
-    again = rows({"wang-lsm": lsm}, jobs=2, chunk=2)
-    assert [w.pid for w in runner._WORKERS[2]._pool] == kept
-    assert runner._portable(runner._Work(sc, {"local": Local()}, None, {}, None, False)) is None
-    local = rows({"local": Local()}, jobs=2, chunk=3)
-    for other in (two, again, local):
-        pd.testing.assert_frame_equal(one, other, check_exact=True)
-
-
-def test_a_kept_worker_computes_with_the_parents_kernel_backend(monkeypatch):
-    """The work reaches a kept worker with the backend in force in the parent (a worker forked
-    earlier does not see a later ``kernels.use``), and work it cannot unpickle comes back as
-    ``None`` for the parent to compute."""
-    import pickle
-
-    from hbench import kernels, runner
-
-    monkeypatch.setattr(runner, "_run_chunk", lambda work, start, n: kernels.backend())
-    blob = pickle.dumps("any work")
-    assert runner._pooled_chunk((blob, "numpy", 0, 1)) == "numpy"
-    assert runner._pooled_chunk((b"not a pickle", "numpy", 0, 1)) is None
+    with pytest.raises(RuntimeError, match="plugin broke"):
+        runner.run_cell(sc, runner.methods_from_names(["wang-lsm"]), 4, 0, jobs=2, chunk=2)
 
 
 # --- session 5: shared passes that must give the same bits as the plain lines they replace ---
