@@ -98,24 +98,24 @@ per-shift ``v' M v`` einsums ~0.02 s), the IV products ~0.06 s (half of it gathe
 ~0.1 s, the fitness ~0.03 s, tidy rows ~0.04 s (pyarrow's string ``take``). 3000 runs/s (~0.47 ms
 of CPU per run at this machine's 1.3-1.5x two-process scaling) is still not met.
 
-Session 9 (2026-11-23): every ``test_end_to_end`` round records its CPU seconds (this process
-and its reaped children) and page faults, and the ``jobs=2`` case splits its speed-up into cores
-kept busy x one process's CPU per run over two's; ``test_two_independent_processes`` runs two
-fresh processes side by side, the machine's own two-process throughput on this workload (no
-fork, nothing shared). One run: one process 1168 runs/s, ``jobs=2`` 1506 (1.83 cores busy x
-0.70; 37 879 page faults per cell against ~2 000 in one process), two independent processes 1943
-(CPU per run 19 % above alone): ``jobs=2`` reached 78 % of what the machine gave two processes.
-The rest is the fork per cell: afterwards every page of the parent's retained heap is
-copy-on-write in both processes. Workers forked once and kept between cells were tried: 732
-faults per cell, 1.89 cores x 0.90, 89 % of the pair's rate, and interleaved best-of-5 against
-5198fa1 1772-1836 against 1425-1611 runs/s with ``jobs=2``, rows byte-identical. Not kept: a
-review found that kept workers run the code and module state of the moment they were forked
-(a class redefined in a notebook or a patched function gave one cell rows from old and new
-code), and that a kept worker killed while idle (the OOM killer, a plain ``os.fork`` child's
-exit handler) left the next cell waiting forever on ``multiprocessing.Pool``. A version would
-need ``concurrent.futures`` (a dead worker raises ``BrokenProcessPool``), the work sent once per
-worker and cell, and kept workers only inside an explicit scope (a sweep process), never by
-default.
+Session 9 (2026-11-23): every ``test_end_to_end`` round records its CPU seconds (this process and
+its reaped children) and page faults, and the ``jobs=2`` case splits its speed-up into cores kept
+busy x one process's CPU per run over two's; ``test_two_independent_processes`` runs two fresh
+processes side by side, the machine's own two-process throughput on this workload (no fork, nothing
+shared). One run: one process 1168 runs/s, ``jobs=2`` 1506 (1.83 cores busy x 0.70; 37 879 page
+faults per cell against ~2 000 in one process), two independent processes 1943 (CPU per run 19 %
+above alone): ``jobs=2`` reached 78 % of what the machine gave two processes. The rest is the fork
+per cell: afterwards every page of the parent's retained heap is copy-on-write in both processes;
+the cost is per cell, not per run (36 000 faults and 0.17 s of system time for a 1000-run cell, 43
+000 and 0.18 s for 3000 runs), so larger cells pay it less. Workers forked once and kept between
+cells were tried: 732 faults per cell, 1.89 cores x 0.90, 89 % of the pair's rate, and interleaved
+best-of-5 against 5198fa1 1772-1836 against 1425-1611 runs/s with ``jobs=2``, rows byte-identical.
+Not kept: a review found that kept workers run the code and module state of the moment they were
+forked (a class redefined in a notebook or a patched function gave one cell rows from old and new
+code), and that a kept worker killed while idle (the OOM killer, a plain ``os.fork`` child's exit
+handler) left the next cell waiting forever on ``multiprocessing.Pool``. A version would need
+``concurrent.futures`` (a dead worker raises ``BrokenProcessPool``), the work sent once per worker
+and cell, and kept workers only inside an explicit scope (a sweep process), never by default.
 """
 
 from __future__ import annotations
