@@ -58,7 +58,6 @@ LAUNCHERS = {
     "basic": (),
     "joblib": ("hydra/launcher=joblib", "hydra.launcher.n_jobs=2"),
 }
-_seconds: dict[str, float] = {}
 #: Rounds per launcher; the speed-up compares the fastest of each (this shared machine's speed
 #: varies by ~20 % from minute to minute, which a single round each turned into 1.15-1.56x).
 ROUNDS = 2
@@ -127,12 +126,10 @@ def test_sweep_16_jobs(benchmark: BenchmarkFixture, tmp_path: Path, launcher: st
     assert status == 0
     out = max(tmp_path.iterdir(), key=lambda p: p.stat().st_mtime)
     assert len(pd.read_csv(out / "fitness.csv")) == 16 * 4
-    seconds = benchmark.stats.stats.min
-    _seconds[launcher] = seconds
     benchmark.extra_info.update(
         launcher=launcher, jobs=16, cores=os.cpu_count(), blas_threads=1, **_runs[launcher]
     )
-    if launcher == "joblib" and "basic" in _seconds:
+    if launcher == "joblib" and "basic" in _runs:
         basic, joblib = _runs["basic"], _runs["joblib"]
         speedup = basic["wall"] / joblib["wall"]  # the fastest round of each
         cores_busy = joblib["cpu"] / joblib["wall"]  # the launcher's factor
