@@ -69,8 +69,17 @@ def _thread_pools() -> Any:
 
 
 @contextlib.contextmanager
+def one_blas_thread() -> Iterator[None]:
+    """One BLAS thread for the duration (restored on exit): for code made of many small
+    products, where OpenBLAS's threads cost more than they share (and compete with a second
+    process's)."""
+    with _thread_pools().limit(limits=1, user_api="blas"):
+        yield
+
+
+@contextlib.contextmanager
 def batch_settings() -> Iterator[None]:
     """One BLAS thread for the duration (restored on exit), glibc's allocator tuned."""
     tune_allocator()
-    with _thread_pools().limit(limits=1, user_api="blas"):
+    with one_blas_thread():
         yield

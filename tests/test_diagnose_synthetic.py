@@ -90,8 +90,8 @@ def test_hidden_effects_confusion_matrix(
     class_ok = sum(r["cls"] == r["found_cls"] for r in rows) / n
     hidden = [r for r in rows if r["effect"] != "none"]
     gain_ok = sum(r["gain"] > 0 for r in hidden) / len(hidden)
-    # the rates this method reaches on seeds 1000-1139 (the printed matrices): cause 121/140,
-    # class 129/140, positive gain 109/120; the bounds leave room for a record or two
+    # the rates this method reaches on seeds 1000-1139 (the printed matrices): cause 123/140,
+    # class 130/140, positive gain 109/120; the bounds leave room for a record or two
     assert cause_ok >= 0.84
     assert class_ok >= 0.90
     assert gain_ok >= 0.88

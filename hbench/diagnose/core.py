@@ -424,11 +424,23 @@ class Model:
         if self.trend.size:
             out = out + trend_basis(z.size, self.trend.size) @ self.trend
         if self.init.size:
-            out = out + self.init[0] * signal.lfilter(self.lin.num, self.lin.a, np.ones(z.size))
+            out = out + self.init[0] * step_response(self.lin, z.size)
         return out
 
     def with_(self, **changes: Any) -> Model:
         return replace(self, **changes)
+
+
+def step_response(lin: Linear, N: int) -> np.ndarray:
+    """``G(q)`` applied to a unit step at ``t = 0``, ``(N,)``: the shape of the start-up
+    transient of a record that starts from rest (the fitted ``Model.init`` scales it)."""
+    return signal.lfilter(lin.num, lin.a, np.ones(N))
+
+
+def start_transient(lin: Linear, N: int) -> np.ndarray:
+    """The start-up transient column of the output fits, ``(N, 1)``, or ``(N, 0)`` when fits
+    carry none (a plant log; see :func:`transient`)."""
+    return step_response(lin, N)[:, None] if TRANSIENT["on"] else np.zeros((N, 0))
 
 
 def trend_basis(N: int, order: int) -> np.ndarray:
@@ -450,11 +462,9 @@ def fit_output(
     least squares on ``idx``."""
     z = model.response(x)
     N = z.size
-    lin = model.lin
-    step = (
-        signal.lfilter(lin.num, lin.a, np.ones(N))[:, None] if TRANSIENT["on"] else np.zeros((N, 0))
+    X = np.hstack(
+        [z[:, None], np.ones((N, 1)), trend_basis(N, trend), start_transient(model.lin, N)]
     )
-    X = np.hstack([z[:, None], np.ones((N, 1)), trend_basis(N, trend), step])
     coef = _wls(X[idx], np.asarray(y, float)[idx], None if weights is None else weights[idx])
     return model.with_(
         gain=float(coef[0]),

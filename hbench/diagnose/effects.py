@@ -17,7 +17,10 @@ effect (seeds 6000-6209 and 7000-7139) for the power. Each statistic is an effec
 significance level, which every small misfit of the nominal model reaches on records of a few
 thousand samples), and each threshold sits at or above the 99th percentile of its nominal
 distribution where most records with the effect exceed it; the numbers are in the report of
-``python -m hbench.diagnose.calibrate --effect none --start 5000 --n 200``. A detector that
+``python -m hbench.diagnose.calibrate --effect none --start 5000 --n 200``. The drift and
+time-varying thresholds also rise, per record, to the 99th percentile of their statistic
+under the record's own nominal noise model (:mod:`hbench.diagnose.null`), since that noise
+can be far slower than the calibration records' (the paper's example). A detector that
 fires spuriously costs little: the cause also needs a validation gain.
 
 Innovations and residuals: ``resid = y - y_hat`` (simulation error) and ``innov``, the nominal
@@ -32,7 +35,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from hbench.diagnose import classes, core, stats
+from hbench.diagnose import classes, core, null, stats
 from hbench.diagnose import nominal as nm
 
 __all__ = ["BUILTIN", "Detection", "Effect"]
@@ -92,16 +95,28 @@ class Effect:
     def extend(self, ctx: nm.Context, nom: nm.Nominal, det: Detection) -> core.Model:
         raise NotImplementedError
 
-    def _det(self, statistic: float, p_value: float, evidence: str, **info: Any) -> Detection:
-        fired = bool(np.isfinite(statistic) and statistic > self.threshold)
+    def _det(
+        self,
+        statistic: float,
+        p_value: float,
+        evidence: str,
+        *,
+        threshold: float | None = None,
+        **info: Any,
+    ) -> Detection:
+        """The detection of ``statistic`` against ``threshold`` (default: the class's
+        calibrated :attr:`threshold`; a detector whose null depends on the record passes its
+        own, never below the calibrated one)."""
+        t = float(self.threshold if threshold is None else max(threshold, self.threshold))
+        fired = bool(np.isfinite(statistic) and statistic > t)
         verdict = "fires" if fired else "quiet"
         return Detection(
             self.name,
             float(statistic),
             float(p_value),
-            float(self.threshold),
+            t,
             fired,
-            f"{evidence} (threshold {self.threshold:g}: {verdict})",
+            f"{evidence} (threshold {t:.4g}: {verdict})",
             info,
         )
 
@@ -200,7 +215,10 @@ class Drift(Effect):
 
     Statistic: the mean periodogram of the simulation residual over the 3 lowest bins against
     bins 4-20 (``F(6, 34)`` for a stationary disturbance whose correlation time is short next to
-    the record). Extension: a drift state, a ramp ``c t`` in the output: the ramp the
+    the record). Threshold: the calibrated 8, or for the blind route the 99th percentile of
+    the same ratio over draws of the nominal noise model (:mod:`hbench.diagnose.null`) when
+    that is larger: a slow plant's equation noise ``e / A`` alone piles its power there.
+    Extension: a drift state, a ramp ``c t`` in the output: the ramp the
     residual shows is taken off ``y``, the nominal route runs again (a drift also distorts the
     blind inner signal, hence the class), and the ramp is fitted with the output scale and
     extrapolated over the validation part.
@@ -214,12 +232,21 @@ class Drift(Effect):
         e = _fit(ctx, nom, nom.resid)
         ratio, p = stats.low_frequency_ratio(e)
         slope = np.polyfit(np.arange(e.size) / e.size, e, 1)[0]
+        draws = null.residual_draws(ctx, nom, null.generator(), settle=SETTLE)
+        q, noise = self.threshold, ""
+        if draws is not None:
+            q = null.percentile(stats.low_frequency_ratios(draws[:, SETTLE:]))
+            noise = (
+                f"; the nominal noise model alone gives {q:.3g} "
+                f"({null.QUANTILE:g}th percentile of {draws.shape[0]} draws)"
+            )
         return self._det(
             ratio,
             p,
             f"residual power in the 3 lowest frequency bins is "
-            f"{ratio:.3g} x that of bins 4-20 (F-test p = {_fmt_p(p)}); "
+            f"{ratio:.3g} x that of bins 4-20 (F-test p = {_fmt_p(p)}){noise}; "
             f"residual trend {slope:+.3g} over the fit part",
+            threshold=q,
         )
 
     def extend(self, ctx: nm.Context, nom: nm.Nominal, det: Detection) -> core.Model:
@@ -384,10 +411,15 @@ class TimeVarying(Effect):
     the nominal inner signal (nominal orders and delay) and (ii) the nominal simulation's
     output scale and offset are fitted on each side of the break instead of once. Equation
     error sees a change of the poles best, the simulation a change of the gain (the
-    equation error of a slow plant is dominated by its own past). Statistic: the larger of
-    the two drops, each divided by its calibrated threshold (:data:`EQ_DROP`,
-    :data:`SIM_DROP`); p-value: the equation-error F at the best break times the number of
-    breaks tried (a Bonferroni bound).
+    equation error of a slow plant is dominated by its own past). The simulation part's one
+    fit has the nominal output fit's columns (simulation, offset and, for a record that
+    starts from rest, the start-up transient), the change model the simulation's scale and
+    offset on each side with the transient common. Statistic: the larger of the two drops,
+    each divided by its threshold (:data:`EQ_DROP`; :data:`SIM_DROP`, or for the blind route
+    the 99th percentile of the largest simulation drop over draws of the nominal noise model,
+    :mod:`hbench.diagnose.null`, when that is larger: a slow plant's noise alone is taken
+    away by separate offsets); p-value: the equation-error F at the best break times the
+    number of breaks tried (a Bonferroni bound).
     """
 
     name = "time-varying"
@@ -403,31 +435,39 @@ class TimeVarying(Effect):
         na, nb, d = m.lin.na, max(m.lin.nb, 1), m.lin.delay
         idx = ctx.fit_idx[SETTLE:]
         rss_p, k = core.arx_rss(u, ctx.y, na, nb, d, idx)
-        z = m.response(ctx.x)
-
-        def sim_rss(sel: np.ndarray) -> float:
-            X = np.stack([z[sel], np.ones(sel.size)], axis=1)
-            r = ctx.y[sel] - X @ np.linalg.lstsq(X, ctx.y[sel], rcond=None)[0]
-            return float(r @ r)
-
-        sim_p = sim_rss(idx)
         n = idx.size
+        breaks = [int(frac * n) for frac in self.BREAKS]
+        # the simulation part: the nominal output fit's columns (simulation, offset, start-up
+        # transient) once, against the simulation's scale and offset on each side of a break
+        # (the start-up transient stays one column: it belongs to the start, not to a change)
+        cols = null.output_columns(ctx, m)[idx]
+        Y = ctx.y[idx][:, None]
+        draws = null.residual_draws(ctx, nom, null.generator(), settle=SETTLE)
+        if draws is not None:
+            Y = np.hstack([Y, draws[:, SETTLE:].T])
+        sims = self.simulation_drops(Y, cols, breaks)  # (breaks, 1 + draws) in %
+        sim_t = self.SIM_DROP
+        if draws is not None:
+            sim_t = max(sim_t, null.percentile(sims[:, 1:].max(axis=0)))
         best = (-np.inf, 0, 0.0, 0.0, 0.0)
-        for frac in self.BREAKS:
-            b = int(frac * n)
+        for j, b in enumerate(breaks):
             r1, _ = core.arx_rss(u, ctx.y, na, nb, d, idx[:b])
             r2, _ = core.arx_rss(u, ctx.y, na, nb, d, idx[b:])
             f = ((rss_p - r1 - r2) / k) / ((r1 + r2) / max(n - 2 * k, 1))
             eq = 100.0 * (1.0 - (r1 + r2) / rss_p) if rss_p > 0 else 0.0
-            sim = (
-                100.0 * (1.0 - (sim_rss(idx[:b]) + sim_rss(idx[b:])) / sim_p) if sim_p > 0 else 0.0
-            )
-            stat = max(eq / self.EQ_DROP, sim / self.SIM_DROP)
+            sim = float(sims[j, 0])
+            stat = max(eq / self.EQ_DROP, sim / sim_t)
             if stat > best[0]:
                 best = (stat, b, float(f), eq, sim)
         stat, b, f, eq, sim = best
         p = min(1.0, stats.f_pvalue(f, k, n - 2 * k) * self.BREAKS.size)
         at = b + SETTLE
+        null_note = (
+            f"; the simulation's threshold is the {null.QUANTILE:g}th percentile of the "
+            f"largest drop over {draws.shape[0]} draws of the nominal noise model"
+            if draws is not None and sim_t > self.SIM_DROP
+            else ""
+        )
         return self._det(
             stat,
             p,
@@ -435,9 +475,28 @@ class TimeVarying(Effect):
             f"of the fit part (t = {at * ctx.h:.4g} s) lower the equation-error RSS "
             f"by {eq:.3g} % and the simulation's by {sim:.3g} % (Chow F {f:.3g}, "
             f"Bonferroni p = {_fmt_p(p)}); statistic: the larger drop over its "
-            f"threshold ({self.EQ_DROP:g} %, {self.SIM_DROP:g} %)",
+            f"threshold ({self.EQ_DROP:g} %, {sim_t:.3g} %){null_note}",
             at=at,
         )
+
+    @staticmethod
+    def simulation_drops(Y: np.ndarray, cols: np.ndarray, breaks: list[int]) -> np.ndarray:
+        """The simulation part's RSS drop (in %) of every column of ``Y`` (``(n, m)``) at
+        every break: the columns ``cols`` (``(n, k)``; the first is the simulation, the
+        second the offset) fitted once, against the first two fitted on each side of the
+        break (the rest kept common). Returns ``(len(breaks), m)``; a column the one fit
+        already explains to rounding (RSS below 1e-12 of its energy) has no drop."""
+        n = Y.shape[0]
+        base = null.projection_rss(Y, cols)
+        ok = base > 1e-12 * np.einsum("nm,nm->m", Y, Y)
+        safe = np.where(ok, base, 1.0)
+        out = np.zeros((len(breaks), Y.shape[1]))
+        for j, b in enumerate(breaks):
+            after = (np.arange(n) >= b)[:, None]
+            X = np.hstack([cols[:, :2] * ~after, cols[:, :2] * after, cols[:, 2:]])
+            rss = null.projection_rss(Y, X)
+            out[j] = np.where(ok, 100.0 * (1.0 - rss / safe), 0.0)
+        return out
 
     def extend(self, ctx: nm.Context, nom: nm.Nominal, det: Detection) -> core.Model:
         b = int(det.info["at"])

@@ -215,14 +215,23 @@ class Nominal:
         return {c: float(f.score) for c, f in self.class_fits.items()}
 
 
+def noise_denominator(model: core.Model) -> np.ndarray | None:
+    """The nominal noise model ``e / D(q)``'s ``D``: ``A(q)`` for p >= 2 (the paper's equation
+    error), ``None`` for p = 1 (output error: white residuals)."""
+    if model.p == 1 or model.info.get("noise") == "output-error":
+        return None
+    return np.asarray(model.lin.a, float)
+
+
 def innovations(model: core.Model, resid: np.ndarray) -> np.ndarray:
     """The nominal noise model's innovations: ``A(q) resid`` for p >= 2 (equation error),
     ``resid`` for p = 1 (output error)."""
-    if model.p == 1 or model.info.get("noise") == "output-error":
+    d = noise_denominator(model)
+    if d is None:
         return resid.copy()
     from scipy import signal
 
-    return signal.lfilter(model.lin.a, [1.0], resid)
+    return signal.lfilter(d, [1.0], resid)
 
 
 def finish(

@@ -27,9 +27,21 @@ def ljung_box(e: np.ndarray, nlags: int = 20) -> tuple[float, float]:
 
 
 def periodogram(e: np.ndarray) -> np.ndarray:
-    """``|DFT|^2 / n`` of the mean-removed series at bins ``0 .. n//2``."""
-    e = np.asarray(e, float) - np.mean(e)
-    return np.abs(np.fft.rfft(e)) ** 2 / e.size
+    """``|DFT|^2 / n`` of the mean-removed series at bins ``0 .. n//2`` (along the last axis)."""
+    e = np.asarray(e, float)
+    e = e - np.mean(e, axis=-1, keepdims=True)
+    return np.abs(np.fft.rfft(e, axis=-1)) ** 2 / e.shape[-1]
+
+
+def low_frequency_ratios(e: np.ndarray, low: int = 3, ref: int = 20) -> np.ndarray:
+    """:func:`low_frequency_ratio`'s ratio of every series along the last axis of ``e``."""
+    P = periodogram(e)
+    ref = min(ref, P.shape[-1] - 1)
+    low = min(low, ref - 1)
+    num = np.mean(P[..., 1 : low + 1], axis=-1)
+    den = np.mean(P[..., low + 1 : ref + 1], axis=-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(den > 0, num / np.where(den > 0, den, 1.0), np.inf)
 
 
 def low_frequency_ratio(e: np.ndarray, low: int = 3, ref: int = 20) -> tuple[float, float]:
@@ -39,12 +51,9 @@ def low_frequency_ratio(e: np.ndarray, low: int = 3, ref: int = 20) -> tuple[flo
     spectrum over these few lowest bins, so the ratio is ``F(2 low, 2 (ref - low))``; a drift
     puts its power in the first bins. Returns ``(ratio, p_value)``.
     """
-    P = periodogram(e)
-    ref = min(ref, P.size - 1)
+    ratio = float(low_frequency_ratios(e, low, ref))
+    ref = min(ref, np.asarray(e).size // 2)
     low = min(low, ref - 1)
-    num = float(np.mean(P[1 : low + 1]))
-    den = float(np.mean(P[low + 1 : ref + 1]))
-    ratio = num / den if den > 0 else np.inf
     return ratio, float(stats.f.sf(ratio, 2 * low, 2 * (ref - low)))
 
 
