@@ -7,7 +7,10 @@ synthetic plant loops (``.. patterns``).
 (its largest values set the thresholds in :mod:`hbench.diagnose.effects`); any other effect
 prints the detection rate and the cause found. Records come from
 :mod:`hbench.diagnose.generator`; the seeds used to calibrate (5000-5199 nominal, 6000-6199 with
-effects) are kept apart from the seeds the tests score.
+effects) are kept apart from the seeds the tests score. Seeds 8000-8199 and 8500-8709 (and the
+paper-example seeds 700-705) were used once, to check the noise-model null of
+:mod:`hbench.diagnose.null` (``docs/experiments/noise-model-null.md``); a new check needs fresh
+ones.
 """
 
 from __future__ import annotations

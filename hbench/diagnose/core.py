@@ -449,6 +449,16 @@ def trend_basis(N: int, order: int) -> np.ndarray:
     return np.stack([t ** (k + 1) for k in range(order)], axis=1) if order else np.zeros((N, 0))
 
 
+def output_columns(model: Model, x: np.ndarray, trend: int = 0) -> np.ndarray:
+    """``(N, k)``: the columns :func:`fit_output` fits, the simulation ``G f(x)``, the offset,
+    ``trend`` polynomial terms and the start-up transient (when fits carry it)."""
+    z = model.response(x)
+    N = z.size
+    return np.hstack(
+        [z[:, None], np.ones((N, 1)), trend_basis(N, trend), start_transient(model.lin, N)]
+    )
+
+
 def fit_output(
     model: Model,
     x: np.ndarray,
@@ -460,11 +470,7 @@ def fit_output(
 ) -> Model:
     """Gain, offset (and ``trend`` polynomial terms, and the initial transient) of ``model`` by
     least squares on ``idx``."""
-    z = model.response(x)
-    N = z.size
-    X = np.hstack(
-        [z[:, None], np.ones((N, 1)), trend_basis(N, trend), start_transient(model.lin, N)]
-    )
+    X = output_columns(model, x, trend)
     coef = _wls(X[idx], np.asarray(y, float)[idx], None if weights is None else weights[idx])
     return model.with_(
         gain=float(coef[0]),

@@ -107,7 +107,9 @@ class Effect:
         """The detection of ``statistic`` against ``threshold`` (default: the class's
         calibrated :attr:`threshold`; a detector whose null depends on the record passes its
         own, never below the calibrated one)."""
-        t = float(self.threshold if threshold is None else max(threshold, self.threshold))
+        t = float(self.threshold)
+        if threshold is not None and np.isfinite(threshold):
+            t = max(t, float(threshold))
         fired = bool(np.isfinite(statistic) and statistic > t)
         verdict = "fires" if fired else "quiet"
         return Detection(
@@ -440,7 +442,7 @@ class TimeVarying(Effect):
         # the simulation part: the nominal output fit's columns (simulation, offset, start-up
         # transient) once, against the simulation's scale and offset on each side of a break
         # (the start-up transient stays one column: it belongs to the start, not to a change)
-        cols = null.output_columns(ctx, m)[idx]
+        cols = core.output_columns(m, ctx.x)[idx]
         Y = ctx.y[idx][:, None]
         draws = null.residual_draws(ctx, nom, null.generator(), settle=SETTLE)
         if draws is not None:
@@ -485,10 +487,12 @@ class TimeVarying(Effect):
         every break: the columns ``cols`` (``(n, k)``; the first is the simulation, the
         second the offset) fitted once, against the first two fitted on each side of the
         break (the rest kept common). Returns ``(len(breaks), m)``; a column the one fit
-        already explains to rounding (RSS below 1e-12 of its energy) has no drop."""
+        already explains to rounding (RSS below 1e-12 of its variation about its mean) has no
+        drop."""
         n = Y.shape[0]
         base = null.projection_rss(Y, cols)
-        ok = base > 1e-12 * np.einsum("nm,nm->m", Y, Y)
+        Yc = Y - Y.mean(axis=0)
+        ok = base > 1e-12 * np.einsum("nm,nm->m", Yc, Yc)
         safe = np.where(ok, base, 1.0)
         out = np.zeros((len(breaks), Y.shape[1]))
         for j, b in enumerate(breaks):

@@ -11,8 +11,8 @@ the same statistic over :data:`N_DRAWS` draws of the nominal noise model: ``v* =
 from rest at the record's start, ``e*`` white with the innovations' variance, with the nominal
 output fit's columns (simulation, offset, start-up transient) projected out over the fit part,
 as the nominal fit does to the record. The threshold is the larger of the calibrated one and
-that percentile; for the generator's records the percentile stays below the calibrated value
-(the decision is the calibrated one), for a slow plant it rises above it.
+that percentile; for the generator's records the percentile almost always stays below the
+calibrated value (the decision is the calibrated one), for a slow plant it rises above it.
 
 The null treats the noise as independent of the simulation; in closed loop the controller
 feeds it back into ``x``. The draws come from a Generator seeded with :data:`SEED` (a
@@ -42,19 +42,13 @@ def generator() -> np.random.Generator:
     return np.random.default_rng(SEED)
 
 
-def output_columns(ctx: nm.Context, model: core.Model) -> np.ndarray:
-    """``(N, k)``: the nominal output fit's columns (simulation, offset, start-up transient)."""
-    N = ctx.N
-    z = model.response(ctx.x)
-    return np.hstack([z[:, None], np.ones((N, 1)), core.start_transient(model.lin, N)])
-
-
 def residual_draws(
     ctx: nm.Context,
     nom: nm.Nominal,
     rng: np.random.Generator,
+    *,
+    settle: int,
     n_draws: int = N_DRAWS,
-    settle: int = 0,
 ) -> np.ndarray | None:
     """Draws of the nominal noise model's simulation residual over the fit part.
 
@@ -64,18 +58,19 @@ def residual_draws(
         The record's context and its nominal model.
     rng
         Source of the white draws (:func:`generator` in the detectors).
+    settle
+        Fast samples at the start of the fit part left out of the innovations' variance (the
+        detectors' start-up, :data:`hbench.diagnose.effects.SETTLE`).
     n_draws
         Number of draws.
-    settle
-        Fast samples of the fit part left out of the innovations' variance (the start-up).
 
     Returns
     -------
     numpy.ndarray or None
-        ``(n_draws, n_fit)``: ``e* / A(q)`` from rest, ``e*`` white with the variance of the
-        nominal innovations over the fit part (after ``settle``), with the nominal output fit's
-        columns projected out over the fit part; ``None`` when the noise model is output error
-        (p = 1).
+        ``(n_draws, n_fit)``: ``e* / A(q)`` from rest, ``e*`` white Gaussian with the variance
+        (about their mean) of the nominal innovations over the fit part after ``settle``,
+        with the nominal output fit's columns projected out over the fit part; ``None`` when
+        the noise model is output error (p = 1).
     """
     d = nm.noise_denominator(nom.model)
     if d is None:
@@ -87,7 +82,7 @@ def residual_draws(
         return None
     e = sigma * rng.standard_normal((n_draws, n))
     v = signal.lfilter([1.0], d, e, axis=-1)
-    Q = orthonormal_basis(output_columns(ctx, nom.model)[:n])
+    Q = orthonormal_basis(core.output_columns(nom.model, ctx.x)[:n])
     with runtime.one_blas_thread():
         return v - (v @ Q) @ Q.T
 
@@ -96,7 +91,8 @@ def orthonormal_basis(X: np.ndarray, rtol: float = 1e-10) -> np.ndarray:
     """``(n, r)``: an orthonormal basis of the column space of ``X`` (``(n, k)``), the
     directions whose singular value is below ``rtol`` times the largest left out (a start-up
     transient that has settled within the record is nearly the offset column)."""
-    U, s, _ = np.linalg.svd(X, full_matrices=False)
+    with runtime.one_blas_thread():  # the same rounding whatever the machine's core count
+        U, s, _ = np.linalg.svd(X, full_matrices=False)
     return U[:, s > rtol * s[0]] if s.size and s[0] > 0 else U[:, :0]
 
 

@@ -33,11 +33,16 @@ def periodogram(e: np.ndarray) -> np.ndarray:
     return np.abs(np.fft.rfft(e, axis=-1)) ** 2 / e.shape[-1]
 
 
+def _low_ref(n: int, low: int, ref: int) -> tuple[int, int]:
+    """The bins :func:`low_frequency_ratio` compares on a series of ``n`` samples."""
+    ref = min(ref, n // 2)
+    return min(low, ref - 1), ref
+
+
 def low_frequency_ratios(e: np.ndarray, low: int = 3, ref: int = 20) -> np.ndarray:
     """:func:`low_frequency_ratio`'s ratio of every series along the last axis of ``e``."""
     P = periodogram(e)
-    ref = min(ref, P.shape[-1] - 1)
-    low = min(low, ref - 1)
+    low, ref = _low_ref(np.shape(e)[-1], low, ref)
     num = np.mean(P[..., 1 : low + 1], axis=-1)
     den = np.mean(P[..., low + 1 : ref + 1], axis=-1)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -52,8 +57,7 @@ def low_frequency_ratio(e: np.ndarray, low: int = 3, ref: int = 20) -> tuple[flo
     puts its power in the first bins. Returns ``(ratio, p_value)``.
     """
     ratio = float(low_frequency_ratios(e, low, ref))
-    ref = min(ref, np.asarray(e).size // 2)
-    low = min(low, ref - 1)
+    low, ref = _low_ref(np.size(e), low, ref)
     return ratio, float(stats.f.sf(ratio, 2 * low, 2 * (ref - low)))
 
 
