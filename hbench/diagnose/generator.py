@@ -389,15 +389,20 @@ def _simulate_switched(
     sc: Scenario, plant2: DiscretePlant, n_switch: int, rng: np.random.Generator
 ) -> Record:
     """The closed loop of ``sc`` with the plant replaced by ``plant2`` from slow sample
-    ``n_switch`` on (the state vector carried over: same orders, same realisation)."""
+    ``n_switch`` on (the state vector carried over: same orders, same realisation). The noise
+    is scaled by ``sc.sigma2`` as :func:`hbench.simulate.simulate` scales it (the generator's
+    own noise carries its level and has ``sigma2 = 1``); a scenario that sets its level by
+    ``snr`` instead is refused."""
     from hbench.seeding import run_streams
 
+    if sc.sigma2 is None:
+        raise ValueError("the switched loop needs a scenario with sigma2, not snr")
     p, K = sc.p, sc.K
     N = K * p
     streams = run_streams(rng, 1, ("reference", "noise"))
     r = sc.reference.generate(streams["reference"], K)
     e = np.stack([g.standard_normal(N) for g in streams["noise"]])
-    v = sc.noise.shape(e, sc.discrete_plant)
+    v = np.sqrt(float(sc.sigma2)) * sc.noise.shape(e, sc.discrete_plant)
     lps = [LiftedPlant.from_plant(sc.discrete_plant, p), LiftedPlant.from_plant(plant2, p)]
     s = np.zeros((1, lps[0].Fp.shape[0]))
     cstate = sc.controller.initial_state(1)
