@@ -197,7 +197,15 @@ def test_null_draws_follow_the_nominal_noise_model() -> None:
     # the paper's slow noise piles its power in the lowest bins: a Lorentzian with its corner
     # near bin 2.6 gives a ratio of ~8 in expectation, white noise ~1; 3 separates the two
     assert np.median(stats.low_frequency_ratios(v[:, 20:])) > 3
-    oe = nominal.Nominal(**{**nom.__dict__, "model": nom.model.with_(p=1)})
+    # the detectors' shared draws: the same recipe at their settle, drawn once per nominal
+    from hbench.diagnose.effects import SETTLE, null_draws
+
+    with core.transient(True):
+        shared = null_draws(ctx, nom)
+        assert null_draws(ctx, nom) is shared
+        recipe = null.residual_draws(ctx, nom, null.generator(), settle=SETTLE)
+    assert shared is not None and recipe is not None and np.array_equal(shared, recipe)
+    oe = nominal.Nominal(**{**nom.__dict__, "model": nom.model.with_(p=1), "cache": {}})
     assert null.residual_draws(ctx, oe, null.generator(), settle=20) is None
 
 

@@ -132,6 +132,15 @@ def _fit(ctx: nm.Context, nom: nm.Nominal, x: np.ndarray) -> np.ndarray:
     return np.asarray(x)[ctx.fit_idx][SETTLE:]
 
 
+def null_draws(ctx: nm.Context, nom: nm.Nominal) -> np.ndarray | None:
+    """The nominal noise model's draws (:func:`hbench.diagnose.null.residual_draws`, from
+    :func:`hbench.diagnose.null.generator`) that the drift and time-varying detectors judge
+    their statistics against: drawn once per nominal model and shared."""
+    if "null_draws" not in nom.cache:
+        nom.cache["null_draws"] = null.residual_draws(ctx, nom, null.generator(), settle=SETTLE)
+    return nom.cache["null_draws"]
+
+
 def _u_fast(model: core.Model, ctx: nm.Context) -> np.ndarray:
     return np.repeat(model.inner(ctx.x), ctx.p)
 
@@ -234,7 +243,7 @@ class Drift(Effect):
         e = _fit(ctx, nom, nom.resid)
         ratio, p = stats.low_frequency_ratio(e)
         slope = np.polyfit(np.arange(e.size) / e.size, e, 1)[0]
-        draws = null.residual_draws(ctx, nom, null.generator(), settle=SETTLE)
+        draws = null_draws(ctx, nom)
         q, noise = self.threshold, ""
         if draws is not None:
             q = null.percentile(stats.low_frequency_ratios(draws[:, SETTLE:]))
@@ -444,7 +453,7 @@ class TimeVarying(Effect):
         # (the start-up transient stays one column: it belongs to the start, not to a change)
         cols = core.output_columns(m, ctx.x)[idx]
         Y = ctx.y[idx][:, None]
-        draws = null.residual_draws(ctx, nom, null.generator(), settle=SETTLE)
+        draws = null_draws(ctx, nom)
         if draws is not None:
             Y = np.hstack([Y, draws[:, SETTLE:].T])
         sims = self.simulation_drops(Y, cols, breaks)  # (breaks, 1 + draws) in %

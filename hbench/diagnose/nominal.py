@@ -209,6 +209,9 @@ class Nominal:
     structure: dict[str, int] = field(default_factory=dict)
     lin_structure: classes.LinearStructure | None = None
     info: dict[str, Any] = field(default_factory=dict)
+    #: Arrays derived from this nominal that several detectors use, computed once (e.g. the
+    #: noise-model draws of :func:`hbench.diagnose.effects.null_draws`).
+    cache: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def scores(self) -> dict[str, float]:
