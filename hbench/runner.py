@@ -8,17 +8,15 @@ the truth, and writes one row per run x method x quantity. A method that raises 
 
 from __future__ import annotations
 
-import multiprocessing as mp
 import time
-import traceback
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from hbench import tidy
+from hbench import tidy, workers
 from hbench.errors import InputError, describe
 from hbench.identifiers import Estimate, Identifier, IdentifyOptions, identify, run_status
 from hbench.metrics import fitnesses
@@ -132,9 +130,11 @@ def run_cell(
     keep_example : bool
         Keep run 0's x, true U and each method's U for plots.
     jobs : int
-        Processes computing the chunks: this one and ``jobs - 1`` forked workers. The rows are
-        the same whatever ``jobs`` (but for the ``seconds`` quantity). With ``jobs > 1`` the cell
-        is cut into a multiple of ``jobs`` chunks of near-equal size (at most ``chunk`` runs each).
+        Processes computing the chunks: this one and ``jobs - 1`` worker processes, forked for
+        the cell, or kept between cells inside :func:`hbench.workers.kept_workers` (faster for
+        many cells; see :mod:`hbench.workers`). The rows are the same whatever ``jobs`` (but for
+        the ``seconds`` quantity). With ``jobs > 1`` the cell is cut into a multiple of ``jobs``
+        chunks of near-equal size (at most ``chunk`` runs each).
 
     Notes
     -----
@@ -165,7 +165,10 @@ def run_cell(
     example: dict[str, Any] = {}
     done = 0
     with batch_settings():  # one BLAS thread, glibc's allocator tuned (hbench.runtime)
-        for (_start, n), (frames, ex) in zip(pieces, _map_chunks(work, pieces, jobs), strict=True):
+        chunks = workers.map_chunks(
+            _run_chunk, work, pieces, jobs, classes=[type(m) for m in work.methods.values()]
+        )
+        for (_start, n), (frames, ex) in zip(pieces, chunks, strict=True):
             rows.extend(frames)
             if ex and not example:
                 example = ex
@@ -197,7 +200,8 @@ def _pieces(runs: int, chunk: int, jobs: int) -> list[tuple[int, int]]:
 
 @dataclass
 class _Work:
-    """What every chunk of a cell needs (shared with forked workers, never pickled)."""
+    """What every chunk of a cell needs (shared with workers forked for the cell, pickled once per
+    cell for kept ones: :mod:`hbench.workers`)."""
 
     scenario: Scenario
     methods: dict[str, Identifier]
@@ -235,52 +239,6 @@ def _run_chunk(work: _Work, start: int, n: int) -> tuple[list[tidy.Block], dict[
         if example:
             example["estimates"][name] = est.U[0].copy()
     return frames, example
-
-
-_FORKED: _Work | None = None
-
-
-def _forked_chunk(piece: tuple[int, int]) -> tuple[list[tidy.Block], dict[str, Any]]:
-    assert _FORKED is not None
-    try:
-        return _run_chunk(_FORKED, *piece)
-    except InputError:
-        raise  # hbench's own errors travel back intact (one-line messages, exit status 2)
-    except BaseException as exc:  # an exception that cannot be unpickled would hang the pool
-        raise RuntimeError(
-            f"runs {piece[0]}..{piece[0] + piece[1] - 1} failed in a worker process:\n"
-            + "".join(traceback.format_exception(exc))
-        ) from None
-
-
-def _map_chunks(
-    work: _Work, pieces: list[tuple[int, int]], jobs: int
-) -> Iterator[tuple[list[tidy.Block], dict[str, Any]]]:
-    """Chunks in order; with ``jobs > 1`` computed by this process and ``jobs - 1`` forked
-    worker processes.
-
-    This process takes every ``jobs``-th chunk itself (its memory is warm: a fresh worker's
-    first chunk pays ~20 000 copy-on-write page faults), the workers the others, and the chunks
-    come back in order. Every run draws from its own stream and its numbers do not depend on
-    the runs batched with it, so the rows do not depend on ``jobs`` (only the ``seconds``
-    quantity does).
-    """
-    global _FORKED
-    if jobs <= 1 or len(pieces) < 2 or "fork" not in mp.get_all_start_methods():
-        for piece in pieces:
-            yield _run_chunk(work, *piece)
-        return
-    jobs = min(jobs, len(pieces))
-    mine = set(range(0, len(pieces), jobs))
-    theirs = [piece for i, piece in enumerate(pieces) if i not in mine]
-    _FORKED = work
-    try:
-        with mp.get_context("fork").Pool(jobs - 1) as pool:
-            done = pool.imap(_forked_chunk, theirs)  # dispatched at once, computed meanwhile
-            for i, piece in enumerate(pieces):
-                yield _run_chunk(work, *piece) if i in mine else next(done)
-    finally:
-        _FORKED = None
 
 
 def methods_from_names(

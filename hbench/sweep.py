@@ -138,7 +138,7 @@ def _launch(argv: Sequence[str]) -> int:
     from hydra import version
     from hydra._internal.utils import _run_hydra, get_args_parser
 
-    from hbench import config
+    from hbench import config, workers
 
     version.setbase("1.3")  # what @hydra.main(version_base="1.3") does
     parser = get_args_parser()
@@ -146,13 +146,16 @@ def _launch(argv: Sequence[str]) -> int:
     root = logging.getLogger()
     saved = (root.level, list(root.handlers))
     try:
-        _run_hydra(
-            args=hargs,
-            args_parser=parser,
-            task_function=task,
-            config_path=str(config.CONF_DIR),
-            config_name="config",
-        )
+        # cells with jobs > 1 that run in this process (the basic launcher) share worker
+        # processes kept for the sweep instead of forking them per cell (hbench.workers)
+        with workers.kept_workers():
+            _run_hydra(
+                args=hargs,
+                args_parser=parser,
+                task_function=task,
+                config_path=str(config.CONF_DIR),
+                config_name="config",
+            )
     except SystemExit as exc:  # Hydra reports its own errors and exits
         code = exc.code
         return code if isinstance(code, int) else (0 if code is None else 1)

@@ -455,3 +455,26 @@ def test_ray_launcher_two_jobs(run_cli: RunCli, tmp_path: Path) -> None:
     assert status == 0, err
     assert len(markers(tmp_path)) == 2
     assert len(pd.read_csv(tmp_path / "fitness.csv")) == 2
+
+
+def test_worker_processes_kept_for_the_sweep_give_the_same_bits(
+    run_cli: RunCli, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Two cells with ``jobs=2`` under the basic launcher share the workers kept for the sweep
+    (:func:`hbench.workers.kept_workers`): the tables are those of ``jobs=1``."""
+    from hbench import workers
+
+    ov = ("noise.snr=5,20", "method=wang-lsm", "seed=7", *SMALL, "chunk=2")
+    status, _, err = sweep(run_cli, tmp_path / "one", *ov)
+    assert status == 0, err
+
+    def forbidden(*args: object) -> None:
+        raise AssertionError("a cell of the sweep forked its own workers")
+
+    monkeypatch.setattr(workers, "_fork_for_cell", forbidden)
+    status, _, err = sweep(run_cli, tmp_path / "two", *ov, "jobs=2")
+    assert status == 0, err
+    for name in ("fitness.csv", "bias.csv"):
+        one, two = (tmp_path / d / name for d in ("one", "two"))
+        assert len(one.read_text().splitlines()) > 1
+        assert one.read_bytes() == two.read_bytes()
