@@ -2,43 +2,56 @@
 
 :func:`hbench.runner.run_cell` with ``jobs = n > 1`` computes every n-th chunk in this process
 and the others in ``n - 1`` worker processes; every run draws from its own stream and its numbers
-do not depend on the runs batched with it, so the rows are the same whatever the processes.
+do not depend on the runs batched with it, so the rows are the same whatever the processes. What
+a worker's chunk logs or warns is replayed in this process, in chunk order, through this
+process's loggers and warning filters.
 
 * **Forked for the cell** (the default). The workers are forked when the cell starts and end
-  with it: they see exactly the code and objects of that moment, and nothing outlives the cell.
-  The price is per cell: after the fork every page of this process's heap is copy-on-write in
-  both processes (~36 000 page faults and ~0.17 s of system time for a 1000-run cell of the
-  paper's example), so two processes gave 70-78 % of what two independent processes give.
+  with it: they see exactly the code, objects and settings of that moment, and nothing outlives
+  the cell. The price is per cell: after the fork every page of this process's heap is
+  copy-on-write in both processes (~36 000 page faults and ~0.17 s of system time for a
+  1000-run cell of the paper's example), so two processes gave 70-78 % of what two independent
+  processes give.
 * **Kept for a scope** (:func:`kept_workers`). Inside ``with kept_workers():`` the workers are
   forked at the first cell with ``jobs > 1`` and kept until the scope ends; each cell's work is
-  pickled once and sent with its chunks, and a worker unpickles it once per cell. ``hbench
-  sweep`` opens this scope around its jobs (a sweep is a finished program running many cells).
+  pickled once (sent with its chunks, or through a file when it is over 1 MiB) and a worker
+  unpickles it once per cell. ``hbench sweep`` opens this scope around its jobs (a finished
+  program running many cells).
 
-  - *Code.* Kept workers run the modules as they were when forked. The classes of the cell's
-    methods are checked: a method class the workers do not have, or whose functions' code
-    differs from this process's (a class redefined in a notebook), makes the workers be forked
-    anew for that cell. Other changes (a module function patched after the first cell) are not
-    seen by the workers, nor are environment variables set after the fork (the kernels'
-    ``HBENCH_KERNELS``: the same numbers either way): open the scope around a finished program,
-    not around an editing session.
+  - *Code.* Kept workers run the modules as they were when forked. Before every cell, this
+    process compares the modules of the cell's function and method classes (every module of
+    their top-level packages) with the moment of the fork: a module, a module-level name or a
+    class attribute bound to another object since (a module reloaded, a class redefined in a
+    notebook, a function or constant patched), or another working directory, and the workers
+    are forked anew. Not seen: objects changed in place (an entry of a module-level dict, a
+    function's ``__defaults__``), and environment variables set after the fork (the kernel
+    backend is passed with every cell, as is :func:`hbench.kernels.use`'s).
   - *Work that does not pickle* (a method class defined inside a function) is computed by
     workers forked for that cell, as by default: the same rows.
-  - *A dead worker* (the OOM killer, a signal) never hangs the cell: :mod:`concurrent.futures`
-    reports it, the chunks it had are computed in this process with a :class:`RuntimeWarning`,
-    and the next cell forks new workers.
+  - *A dead worker* (the OOM killer, a signal) never hangs a cell: :mod:`concurrent.futures`
+    reports it, the cell's remaining worker chunks are computed in this process with a
+    :class:`RuntimeWarning`, and the next cell forks new workers. A worker that dies while idle
+    is replaced at the next cell without a warning (nothing was lost).
+  - *Interrupts.* Kept workers ignore SIGINT; a cell or scope left by an exception (Ctrl-C
+    included) terminates them at once. They also exit when this process dies.
 
 Processes are forked, so this needs the ``fork`` start method (Linux, macOS); elsewhere every
-chunk is computed in this process. One thread of a process at a time may use a scope.
+chunk is computed in this process. One cell at a time per process uses a scope (one thread).
 """
 
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import itertools
-import marshal
+import logging
 import multiprocessing as mp
+import multiprocessing.connection
+import os
 import pickle
+import signal
+import sys
+import tempfile
+import threading
 import traceback
 import warnings
 from collections.abc import Callable, Iterator, Sequence
@@ -46,12 +59,15 @@ from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any
 
+from hbench import kernels
 from hbench.errors import InputError
 from hbench.runtime import batch_settings
 
 #: ``fn(work, start, n)``: computes runs ``start .. start + n - 1`` of a cell.
 ChunkFn = Callable[[Any, int, int], Any]
 Piece = tuple[int, int]
+#: A cell's pickled work above this size goes to kept workers through a file, once per cell.
+INLINE_LIMIT = 1 << 20
 
 
 def map_chunks(
@@ -71,8 +87,8 @@ def map_chunks(
     jobs : int
         Processes, this one included.
     classes : sequence of type
-        Classes whose code kept workers must share with this process (the cell's methods');
-        see the module docstring.
+        The classes of the objects in ``work`` whose code kept workers must share with this
+        process (the cell's methods'); see the module docstring.
     """
     if jobs <= 1 or len(pieces) < 2 or "fork" not in mp.get_all_start_methods():
         for piece in pieces:
@@ -80,23 +96,49 @@ def map_chunks(
         return
     jobs = min(jobs, len(pieces))
     if _SCOPE is not None:
-        blob = _pickled(fn, work, tuple(classes))
+        blob = _pickled(fn, work)
         if blob is not None:
-            yield from _SCOPE.map(fn, work, blob, _fingerprint(classes), pieces, jobs)
+            yield from _SCOPE.map(fn, work, blob, _roots(fn, classes), pieces, jobs)
             return
     yield from _fork_for_cell(fn, work, pieces, jobs)
 
 
-# --- forked for one cell ---------------------------------------------------------------------
-
-_FORKED: tuple[ChunkFn, Any] | None = None
+# --- what every worker does: compute a chunk, bring back its logs and warnings ---------------
 
 
-def _guarded(fn: ChunkFn, work: Any, piece: Piece) -> Any:
-    """A worker's chunk; an exception that could not be unpickled would break the pool, so any
-    but hbench's own (one-line messages, exit status 2) travels back as text."""
+class _Collect(logging.Handler):
+    """Log records of a worker's chunk, made picklable (message formatted, traceback as text)."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.NOTSET)
+        self.records: list[logging.LogRecord] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        record.msg, record.args = record.getMessage(), None
+        if record.exc_info:
+            record.exc_text = logging.Formatter().formatException(record.exc_info)
+            record.exc_info = None
+        self.records.append(record)
+
+
+def _category(category: type[Warning]) -> type[Warning]:
     try:
-        return fn(work, *piece)
+        pickle.dumps(category)
+    except Exception:  # a warning class defined in a function: the closest built-in one
+        return next(c for c in category.__mro__ if c.__module__ == "builtins")
+    return category
+
+
+def _in_worker(fn: ChunkFn, work: Any, piece: Piece) -> tuple[Any, list[Any], list[Any]]:
+    """A worker's chunk with its log records and warnings. An exception that could not be
+    unpickled would break the pool, so any but hbench's own (one-line messages, exit status 2)
+    travels back as text."""
+    root, collect = logging.getLogger(), _Collect()
+    root.addHandler(collect)
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")  # this process's filters decide (see _replay)
+            out = fn(work, *piece)
     except InputError:
         raise
     except BaseException as exc:
@@ -104,11 +146,35 @@ def _guarded(fn: ChunkFn, work: Any, piece: Piece) -> Any:
             f"runs {piece[0]}..{piece[0] + piece[1] - 1} failed in a worker process:\n"
             + "".join(traceback.format_exception(exc))
         ) from None
+    finally:
+        root.removeHandler(collect)
+    found = [(str(w.message), _category(w.category), w.filename, w.lineno) for w in caught]
+    return out, collect.records, found
 
 
-def _forked_chunk(piece: Piece) -> Any:
+_WARNED: dict[Any, Any] = {}  # the registry of replayed warnings ("default": once per location)
+
+
+def _replay(done: tuple[Any, list[Any], list[Any]]) -> Any:
+    """A worker's chunk result, its log records and warnings issued here."""
+    out, records, found = done
+    for record in records:
+        logger = logging.getLogger(record.name)
+        if logger.isEnabledFor(record.levelno):
+            logger.handle(record)
+    for message, category, filename, lineno in found:
+        warnings.warn_explicit(message, category, filename, lineno, registry=_WARNED)
+    return out
+
+
+# --- forked for one cell ---------------------------------------------------------------------
+
+_FORKED: tuple[ChunkFn, Any] | None = None
+
+
+def _forked_chunk(piece: Piece) -> tuple[Any, list[Any], list[Any]]:
     assert _FORKED is not None
-    return _guarded(*_FORKED, piece)
+    return _in_worker(*_FORKED, piece)
 
 
 def _fork_for_cell(fn: ChunkFn, work: Any, pieces: Sequence[Piece], jobs: int) -> Iterator[Any]:
@@ -117,10 +183,10 @@ def _fork_for_cell(fn: ChunkFn, work: Any, pieces: Sequence[Piece], jobs: int) -
     theirs = [piece for i, piece in enumerate(pieces) if i not in mine]
     _FORKED = (fn, work)
     try:
-        with mp.get_context("fork").Pool(jobs - 1) as pool:
+        with mp.get_context("fork").Pool(jobs - 1, initializer=_watch_parent) as pool:
             done = pool.imap(_forked_chunk, theirs)  # dispatched at once, computed meanwhile
             for i, piece in enumerate(pieces):
-                yield fn(work, *piece) if i in mine else next(done)
+                yield fn(work, *piece) if i in mine else _replay(next(done))
     finally:
         _FORKED = None
 
@@ -129,75 +195,136 @@ def _fork_for_cell(fn: ChunkFn, work: Any, pieces: Sequence[Piece], jobs: int) -
 
 
 class _Stale(Exception):
-    """A kept worker cannot run a cell's work as this process would (see the module docstring)."""
+    """A kept worker cannot unpickle a cell's work (a class or function defined after the fork
+    outside the modules :func:`_snapshot` watches)."""
 
 
-def _pickled(fn: ChunkFn, work: Any, classes: tuple[type, ...]) -> bytes | None:
+def _pickled(fn: ChunkFn, work: Any) -> bytes | None:
     """What a kept worker needs of a cell, or ``None`` where it does not pickle (classes and
     functions travel by reference to their module, so a kept worker uses its own)."""
     try:
-        return pickle.dumps((fn, work, classes), protocol=pickle.HIGHEST_PROTOCOL)
-    except (pickle.PicklingError, AttributeError, TypeError):
+        return pickle.dumps((fn, work, kernels._asked()), protocol=pickle.HIGHEST_PROTOCOL)
+    except Exception:  # PicklingError, AttributeError, TypeError, ValueError (ctypes), ...
         return None
 
 
-def _fingerprint(classes: Sequence[type]) -> str:
-    """A hash of the code of the functions defined in ``classes`` and their bases."""
-    h = hashlib.sha256()
-    for cls in classes:
-        for klass in cls.__mro__:
-            if klass is object:
-                continue
-            h.update(f"{klass.__module__}.{klass.__qualname__}".encode())
-            for name, attr in sorted(vars(klass).items()):
-                func = getattr(attr, "__func__", attr)  # staticmethod, classmethod
-                code = getattr(func, "__code__", None)
-                if code is not None:
-                    h.update(name.encode())
-                    h.update(marshal.dumps(code))
-    return h.hexdigest()
+def _roots(fn: ChunkFn, classes: Sequence[type]) -> frozenset[str]:
+    """The top-level packages defining ``fn`` and ``classes`` (and their bases)."""
+    roots = {fn.__module__.partition(".")[0]}
+    roots.update(k.__module__.partition(".")[0] for c in classes for k in c.__mro__[:-1])
+    return frozenset(roots)
 
 
-_CELL: tuple[int, ChunkFn, Any] | None = None  # a kept worker's last cell: token, fn, work
+def _snapshot(roots: frozenset[str]) -> dict[tuple[str, str], Any]:
+    """Every module of the top-level packages ``roots``, each module-level name's object and
+    each class attribute's, and the working directory."""
+    snap: dict[tuple[str, str], Any] = {("", "cwd"): os.getcwd()}
+    for name, module in list(sys.modules.items()):
+        if module is None or name.partition(".")[0] not in roots:
+            continue
+        snap[(name, "")] = module
+        for key, value in list(vars(module).items()):
+            snap[(name, key)] = value
+            if isinstance(value, type) and value.__module__ == name:
+                for attr, v in list(vars(value).items()):
+                    snap[(name, f"{key}.{attr}")] = v
+    return snap
 
 
-def _kept_chunk(token: int, blob: bytes, fingerprint: str, piece: Piece) -> Any:
+def _changed(then: dict[tuple[str, str], Any], now: dict[tuple[str, str], Any]) -> str:
+    """The first thing bound to another object since ``then`` (names added since are not
+    compared: kept workers import new modules from disk themselves), or ``""``."""
+    if then[("", "cwd")] != now[("", "cwd")]:
+        return "the working directory"
+    missing = object()
+    for key, value in then.items():
+        if key != ("", "cwd") and now.get(key, missing) is not value:
+            return ".".join(k for k in key if k)
+    return ""
+
+
+def _watch_parent() -> None:
+    """A worker's initialiser: ignore Ctrl-C (the parent terminates the workers), leave the
+    parent's log handlers (records go back to it), and exit when the parent dies."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    logging.getLogger().handlers.clear()
+    parent = mp.parent_process()
+    if parent is not None:
+
+        def watch() -> None:
+            multiprocessing.connection.wait([parent.sentinel])
+            os._exit(1)
+
+        threading.Thread(target=watch, daemon=True).start()
+
+
+_CELL: tuple[int, ChunkFn, Any, str] | None = None  # a kept worker's last cell
+
+
+def _kept_chunk(token: int, blob: bytes | str, piece: Piece) -> tuple[Any, list[Any], list[Any]]:
     global _CELL
     if _CELL is None or _CELL[0] != token:
         try:
-            fn, work, classes = pickle.loads(blob)
-        except Exception as exc:  # a class or function defined after the fork
+            if isinstance(blob, str):  # a file (large work)
+                with open(blob, "rb") as fh:
+                    blob = fh.read()
+            fn, work, backend = pickle.loads(blob)
+        except Exception as exc:
             raise _Stale(f"{type(exc).__name__}: {exc}") from None
-        if _fingerprint(classes) != fingerprint:  # this worker's classes of those names
-            raise _Stale("the code of a class differs from the parent's")
-        _CELL = (token, fn, work)
-    with batch_settings():
-        return _guarded(_CELL[1], _CELL[2], piece)
+        _CELL = (token, fn, work, backend)
+    _, fn, work, backend = _CELL
+    with batch_settings(), kernels.use(backend):
+        return _in_worker(fn, work, piece)
 
 
-class _Kept:
+class KeptWorkers:
     """The workers of a :func:`kept_workers` scope (forked at the first cell that needs them)."""
 
     def __init__(self) -> None:
         self.pool: ProcessPoolExecutor | None = None
         self.size = 0
+        self.forked: dict[tuple[str, str], Any] = {}  # _snapshot(self.roots) at the fork
+        self.roots: frozenset[str] = frozenset()
         self.tokens = itertools.count()
+        #: chunks computed by kept workers, forks of the pool, cells whose chunks fell back here
+        self.stats = {"remote": 0, "forks": 0, "fallback": 0}
 
-    def close(self) -> None:
-        if self.pool is not None:
-            self.pool.shutdown(wait=True, cancel_futures=True)
-        self.pool, self.size = None, 0
+    def close(self, terminate: bool = False) -> None:
+        """Shut the workers down (after their current chunk), or ``terminate`` them now."""
+        pool, self.pool, self.size, self.forked = self.pool, None, 0, {}
+        if pool is None:
+            return
+        if not terminate:
+            pool.shutdown(wait=True, cancel_futures=True)
+            return
+        procs = list(getattr(pool, "_processes", {}).values())  # the executor's own workers
+        pool.shutdown(wait=False, cancel_futures=True)
+        for proc in procs:
+            proc.terminate()
+        for proc in procs:
+            proc.join()
 
-    def _submit(self, size: int, args: list[tuple[Any, ...]]) -> list[Future[Any]]:
+    def _submit(
+        self, size: int, roots: frozenset[str], args: list[tuple[Any, ...]]
+    ) -> list[Future[Any]]:
+        if self.pool is not None and (
+            self.size < size
+            or not roots <= self.roots  # packages not watched since the fork
+            or _changed(self.forked, _snapshot(self.roots))
+        ):
+            self.close()  # more workers wanted, or code changed since the fork: fork anew
         for attempt in range(2):
-            if self.pool is None or self.size != size:
-                self.close()
-                self.pool = ProcessPoolExecutor(size, mp_context=mp.get_context("fork"))
-                self.size = size
+            if self.pool is None:
+                self.roots |= roots
+                self.pool = ProcessPoolExecutor(
+                    size, mp_context=mp.get_context("fork"), initializer=_watch_parent
+                )
+                self.size, self.forked = size, _snapshot(self.roots)
+                self.stats["forks"] += 1
             try:
                 return [self.pool.submit(_kept_chunk, *a) for a in args]
             except BrokenProcessPool:  # a worker died while the pool was idle
-                self.close()
+                self.close(terminate=True)
                 if attempt:
                     raise
         raise AssertionError("unreachable")
@@ -207,57 +334,75 @@ class _Kept:
         fn: ChunkFn,
         work: Any,
         blob: bytes,
-        fingerprint: str,
+        roots: frozenset[str],
         pieces: Sequence[Piece],
         jobs: int,
     ) -> Iterator[Any]:
         token = next(self.tokens)
         theirs = [i for i in range(len(pieces)) if i % jobs]
-        futures = dict(
-            zip(
-                theirs,
-                self._submit(jobs - 1, [(token, blob, fingerprint, pieces[i]) for i in theirs]),
-                strict=True,
-            )
-        )
-        stale = False
+        path = None
+        sent: bytes | str = blob
+        if len(blob) > INLINE_LIMIT:  # once per cell through a file, not with every chunk
+            fd, path = tempfile.mkstemp(prefix="hbench-cell-", suffix=".pickle")
+            with os.fdopen(fd, "wb") as fh:
+                fh.write(blob)
+            sent = path
+        ok = False
         try:
+            futures = dict(
+                zip(
+                    theirs,
+                    self._submit(jobs - 1, roots, [(token, sent, pieces[i]) for i in theirs]),
+                    strict=True,
+                )
+            )
+            stale = fallback = False
             for i, piece in enumerate(pieces):
                 if i not in futures:
                     yield fn(work, *piece)
                     continue
                 try:
-                    yield futures[i].result()
+                    done = futures[i].result()
                 except _Stale:
                     stale = True  # computed here; the next cell forks workers that have the code
                     yield fn(work, *piece)
+                    continue
                 except BrokenProcessPool as exc:
-                    if self.pool is not None:
+                    if not fallback:
                         warnings.warn(
-                            f"a kept worker process died ({exc}); its chunks are computed in "
-                            "this process and the next cell forks new workers",
+                            f"a kept worker process died ({exc}); this cell's remaining worker "
+                            "chunks are computed in this process and the next cell forks new "
+                            "workers",
                             RuntimeWarning,
                             stacklevel=2,
                         )
-                        self.pool.shutdown(wait=False, cancel_futures=True)
-                        self.pool, self.size = None, 0
+                        fallback = True
                     yield fn(work, *piece)
+                    continue
+                self.stats["remote"] += 1
+                yield _replay(done)
+            self.stats["fallback"] += stale or fallback
+            if stale or fallback:
+                self.close(terminate=fallback)
+            ok = True
         finally:
-            for fut in futures.values():
-                fut.cancel()
-            if stale:
-                self.close()
+            if not ok:  # an exception, Ctrl-C or a generator closed early: no chunk left running
+                self.close(terminate=True)
+            if path is not None:
+                os.unlink(path)
 
 
-_SCOPE: _Kept | None = None
+_SCOPE: KeptWorkers | None = None
 
 
 @contextlib.contextmanager
-def kept_workers() -> Iterator[None]:
+def kept_workers() -> Iterator[KeptWorkers]:
     """Keep the worker processes of ``run_cell(..., jobs > 1)`` between cells for the duration.
 
-    Workers are forked at the first cell that needs them and shut down when the scope ends; a
-    nested scope uses the outer one's. See the module docstring for what kept workers see.
+    Workers are forked at the first cell that needs them and shut down when the scope ends (at
+    once when it ends with an exception); a nested scope uses the outer one's. See the module
+    docstring for what kept workers see. Yields the scope's state (``stats``: chunks computed
+    by kept workers, forks, cells computed here after a worker died or could not run the work).
 
     Examples
     --------
@@ -268,11 +413,13 @@ def kept_workers() -> Iterator[None]:
     """
     global _SCOPE
     if _SCOPE is not None:
-        yield
+        yield _SCOPE
         return
-    _SCOPE = _Kept()
+    _SCOPE = scope = KeptWorkers()
+    ok = False
     try:
-        yield
+        yield scope
+        ok = True
     finally:
-        scope, _SCOPE = _SCOPE, None
-        scope.close()
+        _SCOPE = None
+        scope.close(terminate=not ok)

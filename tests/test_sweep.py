@@ -472,9 +472,19 @@ def test_worker_processes_kept_for_the_sweep_give_the_same_bits(
         raise AssertionError("a cell of the sweep forked its own workers")
 
     monkeypatch.setattr(workers, "_fork_for_cell", forbidden)
+    stats: list[dict[str, int]] = []
+    close = workers.KeptWorkers.close
+
+    def closing(self: workers.KeptWorkers, terminate: bool = False) -> None:
+        stats.append(dict(self.stats))
+        close(self, terminate)
+
+    monkeypatch.setattr(workers.KeptWorkers, "close", closing)
     status, _, err = sweep(run_cli, tmp_path / "two", *ov, "jobs=2")
     assert status == 0, err
     for name in ("fitness.csv", "bias.csv"):
         one, two = (tmp_path / d / name for d in ("one", "two"))
         assert len(one.read_text().splitlines()) > 1
         assert one.read_bytes() == two.read_bytes()
+    # 2 cells x 4 chunks of <= 2 runs: the kept workers computed 2 of each, forked once
+    assert stats[-1] == {"remote": 4, "forks": 1, "fallback": 0}

@@ -1,41 +1,56 @@
 """hbench.workers: worker processes forked per cell or kept for a scope (issue 7).
 
 The kept scope must give the rows of one process, reuse its workers between cells, never run a
-cell with code the parent no longer has (for the cell's method classes), and never hang when a
-worker dies.
+cell with code or settings the parent no longer has, never hang or leave processes behind when
+a worker or the parent dies or is interrupted, and lose nothing a worker logs or warns.
 """
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
+import logging
 import os
+import signal
 import subprocess
 import sys
 import textwrap
+import time
+import warnings
 from dataclasses import dataclass, field
 
 import pandas as pd
 import pytest
 
-from hbench import workers
+from hbench import kernels, workers
 
 pytestmark = pytest.mark.skipif(
     "fork" not in __import__("multiprocessing").get_all_start_methods(),
     reason="worker processes are forked (no fork start method here)",
 )
 PIECES = [(0, 2), (2, 2), (4, 2), (6, 2), (8, 2), (10, 2)]
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+SUFFIX = "-v1"  # a module constant the chunks read (patched by a test)
 
 
 class Tag:
     """A stand-in for a method class: what kept workers compute comes from its code."""
 
+    factor = 1
+
     def value(self) -> str:
-        return "old"
+        return f"old{self.factor}{helper()}"
+
+
+def helper() -> str:
+    return SUFFIX
 
 
 @dataclass
 class Work:
     parent: int
     methods: dict[str, object] = field(default_factory=dict)
+    payload: object = None
 
 
 def whose(work: Work, start: int, n: int) -> tuple[int, int, int, str]:
@@ -50,84 +65,159 @@ def dies_in_a_worker(work: Work, start: int, n: int) -> tuple[int, int, int, str
     return whose(work, start, n)
 
 
+def talks(work: Work, start: int, n: int) -> tuple[int, int, int, str]:
+    logging.getLogger("hbench.test_workers").warning("chunk %d logs", start)
+    warnings.warn(f"chunk {start} warns", UserWarning, stacklevel=1)
+    return whose(work, start, n)
+
+
+def backend(work: Work, start: int, n: int) -> tuple[int, int, int, str]:
+    return start, n, os.getpid(), kernels._asked()
+
+
+def slow(work: Work, start: int, n: int) -> tuple[int, int, int, str]:
+    time.sleep(3.0)
+    return whose(work, start, n)
+
+
 def _run(fn, work, classes=()):
     return list(workers.map_chunks(fn, work, PIECES, 2, classes=classes))
 
 
+def _pids(cell):
+    return {c[2] for c in cell[1::2]}  # the chunks the workers computed
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
 def test_kept_workers_are_reused_between_cells_and_closed_with_the_scope():
     work = Work(os.getpid())
-    with workers.kept_workers():
+    with workers.kept_workers() as scope:
         first, second = _run(whose, work), _run(whose, work)
-        kept = set(workers._SCOPE.pool._processes)
-        with workers.kept_workers():  # nested: the outer scope's workers serve
+        kept = set(scope.pool._processes)
+        with workers.kept_workers() as inner:  # nested: the outer scope's workers serve
             third = _run(whose, work)
+        assert inner is scope
     assert [c[:2] for c in first] == PIECES == [c[:2] for c in second]
-    pids = [{c[2] for c in cell[1::2]} for cell in (first, second, third)]
-    assert pids[0] == pids[1] == pids[2] and os.getpid() not in pids[0]
+    assert _pids(first) == _pids(second) == _pids(third) == kept
+    assert os.getpid() not in kept
     assert {c[2] for c in first[0::2]} == {os.getpid()}  # every other chunk here (warm)
-    assert workers._SCOPE is None and kept == pids[0]
-    for pid in kept:  # shut down and reaped with the scope
-        with pytest.raises(ProcessLookupError):
-            os.kill(pid, 0)
+    assert scope.stats == {"remote": 9, "forks": 1, "fallback": 0}
+    assert workers._SCOPE is None and not any(_alive(pid) for pid in kept)
 
 
 def test_without_a_scope_every_cell_forks_its_own_workers():
     work = Work(os.getpid())
     a, b = _run(whose, work), _run(whose, work)
-    assert {c[2] for c in a[1::2]}.isdisjoint({c[2] for c in b[1::2]})
+    assert _pids(a).isdisjoint(_pids(b)) and os.getpid() not in _pids(a)
 
 
-def test_a_redefined_method_class_is_not_run_with_the_workers_old_code(monkeypatch):
-    """The workers were forked with the old ``Tag``; after the class is redefined in its module
-    (as in a notebook), the cell must compute with the new one, and the next cell's workers are
-    forked anew."""
-    with workers.kept_workers():
+@pytest.mark.parametrize("change", ["class", "attribute", "helper", "constant"])
+def test_code_changed_after_the_fork_is_not_run_by_the_old_workers(monkeypatch, change):
+    """The workers were forked with the old code; after a change in the test module (as in a
+    notebook: a class redefined, a class attribute, a helper function or a constant patched)
+    the cell must compute with the new code everywhere, through workers forked anew."""
+    module = sys.modules[__name__]
+    with workers.kept_workers() as scope:
         old = _run(whose, Work(os.getpid(), {"m": Tag()}), classes=[Tag])
-        assert {c[3] for c in old} == {"old"}
+        assert {c[3] for c in old} == {"old1-v1"}
+        cls = Tag
+        if change == "class":
 
-        class Tag2:
-            def value(self) -> str:
-                return "new"
+            class Tag2:
+                factor = 1
 
-        Tag2.__module__, Tag2.__qualname__, Tag2.__name__ = __name__, "Tag", "Tag"
-        monkeypatch.setattr(sys.modules[__name__], "Tag", Tag2)
-        work = Work(os.getpid(), {"m": Tag2()})
-        new = _run(whose, work, classes=[Tag2])
-        assert {c[3] for c in new} == {"new"}
-        again = _run(whose, work, classes=[Tag2])  # fresh workers: they have the new class
-    assert {c[3] for c in again} == {"new"}
-    assert os.getpid() not in {c[2] for c in again[1::2]}
-    assert {c[2] for c in again[1::2]}.isdisjoint({c[2] for c in old[1::2]})
+                def value(self) -> str:
+                    return "new"
+
+            Tag2.__module__, Tag2.__qualname__, Tag2.__name__ = __name__, "Tag", "Tag"
+            monkeypatch.setattr(module, "Tag", Tag2)
+            cls, expected = Tag2, "new"
+        elif change == "attribute":
+            monkeypatch.setattr(Tag, "factor", 2)
+            expected = "old2-v1"
+        elif change == "helper":
+            monkeypatch.setattr(module, "helper", lambda: "-patched")
+            expected = "old1-patched"
+        else:
+            monkeypatch.setattr(module, "SUFFIX", "-v2")
+            expected = "old1-v2"
+        new = _run(whose, Work(os.getpid(), {"m": cls()}), classes=[cls])
+        again = _run(whose, Work(os.getpid(), {"m": cls()}), classes=[cls])
+    assert {c[3] for c in new} == {c[3] for c in again} == {expected}
+    assert _pids(new).isdisjoint(_pids(old)) and os.getpid() not in _pids(new)
+    assert _pids(again) == _pids(new)  # no change since: the same workers
+    assert scope.stats["forks"] == 2 and scope.stats["fallback"] == 0
 
 
-def test_work_that_does_not_pickle_is_computed_by_workers_forked_for_the_cell():
+@pytest.mark.parametrize("kind", ["local class", "ctypes pointer"])
+def test_work_that_does_not_pickle_is_computed_by_workers_forked_for_the_cell(kind):
     class Local:  # defined in a function: pickle cannot name it
         def value(self) -> str:
             return "local"
 
-    work = Work(os.getpid(), {"m": Local()})
-    with workers.kept_workers():
+    if kind == "local class":
+        work = Work(os.getpid(), {"m": Local()})
+    else:  # pickling a ctypes pointer raises ValueError
+        work = Work(os.getpid(), payload=ctypes.pointer(ctypes.c_int(3)))
+    with workers.kept_workers() as scope:
         out = _run(whose, work, classes=[Local])
-        assert workers._SCOPE.pool is None  # no kept worker was started
-    assert {c[3] for c in out} == {"local"} and [c[:2] for c in out] == PIECES
-    assert os.getpid() not in {c[2] for c in out[1::2]}
+        assert scope.pool is None  # no kept worker was started
+    assert [c[:2] for c in out] == PIECES and os.getpid() not in _pids(out)
+
+
+def test_large_work_reaches_kept_workers_through_a_file_once_per_cell(tmp_path, monkeypatch):
+    monkeypatch.setattr("tempfile.tempdir", str(tmp_path))
+    work = Work(os.getpid(), payload=b"x" * (workers.INLINE_LIMIT + 1))
+    with workers.kept_workers() as scope:
+        out = _run(whose, work)
+    assert [c[:2] for c in out] == PIECES and scope.stats["remote"] == 3
+    assert not list(tmp_path.iterdir())  # the cell's file is removed after it
+
+
+def test_the_kernel_backend_of_each_cell_reaches_kept_workers():
+    with workers.kept_workers():
+        first = _run(backend, Work(os.getpid()))
+        with kernels.use("numpy"):
+            second = _run(backend, Work(os.getpid()))
+    assert {c[3] for c in first} == {kernels._asked()}
+    assert {c[3] for c in second} == {"numpy"} and _pids(first) == _pids(second)
+
+
+@pytest.mark.parametrize("kept", [True, False])
+def test_what_a_worker_logs_and_warns_is_replayed_here_in_chunk_order(caplog, kept):
+    with workers.kept_workers() if kept else contextlib.nullcontext():
+        with caplog.at_level(logging.WARNING, logger="hbench.test_workers"):
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                out = _run(talks, Work(os.getpid()))
+    assert os.getpid() not in _pids(out)
+    starts = [s for s, _ in PIECES]
+    assert [r.getMessage() for r in caplog.records] == [f"chunk {s} logs" for s in starts]
+    assert [str(w.message) for w in caught] == [f"chunk {s} warns" for s in starts]
 
 
 def test_a_worker_dying_mid_cell_loses_no_chunk():
     work = Work(os.getpid())
-    with workers.kept_workers():
+    with workers.kept_workers() as scope:
         with pytest.warns(RuntimeWarning, match="kept worker process died"):
             out = _run(dies_in_a_worker, work)
         assert [c[:2] for c in out] == PIECES and {c[2] for c in out} == {os.getpid()}
         after = _run(whose, work)  # the next cell forks new workers
-    assert os.getpid() not in {c[2] for c in after[1::2]}
+    assert os.getpid() not in _pids(after)
+    assert scope.stats["fallback"] == 1 and scope.stats["forks"] == 2
 
 
-def test_a_worker_killed_while_idle_does_not_hang_the_next_cell(tmp_path):
+def test_a_worker_killed_while_idle_does_not_hang_the_next_cell():
     """Session 9's kept ``multiprocessing.Pool`` waited forever here: run in a subprocess with a
-    time limit so a regression fails instead of hanging the suite."""
-    script = textwrap.dedent(
-        """
+    time limit, so a regression fails instead of hanging the suite."""
+    body = """
         import os, signal, time, warnings
         from hbench import workers
         from tests.test_workers import PIECES, Work, whose
@@ -144,11 +234,9 @@ def test_a_worker_killed_while_idle_does_not_hang_the_next_cell(tmp_path):
         assert pid not in {c[2] for c in second}
         print("ok")
         """
-    )
-    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     done = subprocess.run(
-        [sys.executable, "-c", script],
-        cwd=root,
+        [sys.executable, "-c", textwrap.dedent(body)],
+        cwd=ROOT,
         capture_output=True,
         text=True,
         timeout=120,
@@ -156,8 +244,80 @@ def test_a_worker_killed_while_idle_does_not_hang_the_next_cell(tmp_path):
     assert done.returncode == 0 and done.stdout.strip() == "ok", done.stderr
 
 
+def _start(body: str) -> tuple[subprocess.Popen[str], list[int]]:
+    """``body`` in a fresh interpreter that prints its kept workers' pids on one line."""
+    proc = subprocess.Popen(
+        [sys.executable, "-c", textwrap.dedent(body)],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    kids = [int(v) for v in proc.stdout.readline().split()]
+    if not kids:
+        proc.kill()
+        pytest.fail(proc.communicate()[1])
+    return proc, kids
+
+
+def test_ctrl_c_ends_the_scope_at_once_and_leaves_no_worker():
+    """Two SIGINTs 0.1 s apart during 3 s chunks (a review found this hung): the process exits
+    well before its queued chunks would have ended, and its workers are gone."""
+    proc, kids = _start(
+        """
+        import os, threading, time
+        from hbench import workers
+        from tests.test_workers import PIECES, Work, slow
+        with workers.kept_workers() as scope:
+            def report():
+                time.sleep(1.0)
+                print(*scope.pool._processes, flush=True)
+            threading.Thread(target=report, daemon=True).start()
+            list(workers.map_chunks(slow, Work(os.getpid()), PIECES, 2))
+        """
+    )
+    try:
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGINT)
+        time.sleep(0.1)
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=30)
+        waited = time.monotonic() - t0
+    finally:
+        proc.kill()
+    assert proc.returncode != 0 and waited < 3.0, waited
+    deadline = time.monotonic() + 5
+    while any(_alive(pid) for pid in kids) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not any(_alive(pid) for pid in kids)
+
+
+def test_kept_workers_exit_when_their_parent_is_killed():
+    proc, kids = _start(
+        """
+        import os, time
+        from hbench import workers
+        from tests.test_workers import PIECES, Work, whose
+        with workers.kept_workers() as scope:
+            list(workers.map_chunks(whose, Work(os.getpid()), PIECES, 2))
+            print(*scope.pool._processes, flush=True)
+            time.sleep(60)  # between cells
+        """
+    )
+    try:
+        assert all(_alive(pid) for pid in kids)
+    finally:
+        proc.kill()
+        proc.wait()
+    deadline = time.monotonic() + 10
+    while any(_alive(pid) for pid in kids) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not any(_alive(pid) for pid in kids)
+
+
 def test_run_cell_in_a_kept_scope_gives_the_rows_of_one_process():
-    """Two different cells (other scenario, other methods) through the same kept workers."""
+    """Two different cells (other scenario, other methods) through the same kept workers,
+    twice each: no fork after the first, every cell's worker chunks computed by them."""
     from hbench import scenarios
     from hbench.runner import methods_from_names, run_cell
     from tests.helpers import paper_spec
@@ -176,8 +336,10 @@ def test_run_cell_in_a_kept_scope_gives_the_rows_of_one_process():
         ),
     ]
     ref = [rows(sc, m) for sc, m in cells]
-    with workers.kept_workers():
-        kept = [rows(sc, m, jobs=2, chunk=2) for sc, m in cells]
-    for a, b in zip(ref, kept, strict=True):
+    with workers.kept_workers() as scope:
+        kept = [rows(sc, m, jobs=2, chunk=2) for sc, m in cells * 2]
+    assert scope.stats["remote"] == 8 and scope.stats["fallback"] == 0  # 2 of 4 chunks x 4
+    assert scope.stats["forks"] == 2  # the second cell's plugin packages were not watched yet
+    for a, b in zip(ref * 2, kept, strict=True):
         assert len(a) > 0
         pd.testing.assert_frame_equal(a, b, check_exact=True)
