@@ -165,9 +165,7 @@ def run_cell(
     example: dict[str, Any] = {}
     done = 0
     with batch_settings():  # one BLAS thread, glibc's allocator tuned (hbench.runtime)
-        chunks = workers.map_chunks(
-            _run_chunk, work, pieces, jobs, classes=[type(m) for m in work.methods.values()]
-        )
+        chunks = workers.map_chunks(_run_chunk, work, pieces, jobs)
         for (_start, n), (frames, ex) in zip(pieces, chunks, strict=True):
             rows.extend(frames)
             if ex and not example:

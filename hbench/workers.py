@@ -19,21 +19,26 @@ process's loggers and warning filters.
   program running many cells).
 
   - *Code.* Kept workers run the modules as they were when forked. Before every cell, this
-    process compares the modules of the cell's function and method classes (every module of
-    their top-level packages) with the moment of the fork: a module, a module-level name or a
-    class attribute bound to another object since (a module reloaded, a class redefined in a
-    notebook, a function or constant patched), or another working directory, and the workers
-    are forked anew. Not seen: objects changed in place (an entry of a module-level dict, a
-    function's ``__defaults__``), and environment variables set after the fork (the kernel
-    backend is passed with every cell, as is :func:`hbench.kernels.use`'s).
+    process compares the packages the cell's pickled work names (its functions', classes' and
+    objects' top-level packages and their classes' bases', but for the standard library and
+    :data:`UNWATCHED`) with the moment of the fork: a module, a module-level name or a class
+    attribute bound to another object since (a module reloaded, a class redefined in a
+    notebook, a function or constant patched; in ``__main__`` only functions, classes and
+    modules, so a script's loop variables do not count), or another working directory, and the
+    workers are forked anew. Not seen: objects changed in place (an entry of a module-level
+    dict, a function's ``__defaults__``), code reached only through a name the work does not
+    pickle, and environment variables set after the fork (the kernel backend is passed with
+    every cell, as is :func:`hbench.kernels.use`'s).
   - *Work that does not pickle* (a method class defined inside a function) is computed by
     workers forked for that cell, as by default: the same rows.
   - *A dead worker* (the OOM killer, a signal) never hangs a cell: :mod:`concurrent.futures`
     reports it, the cell's remaining worker chunks are computed in this process with a
-    :class:`RuntimeWarning`, and the next cell forks new workers. A worker that dies while idle
-    is replaced at the next cell without a warning (nothing was lost).
+    :class:`RuntimeWarning`, and the next cell forks new workers. A worker that died while idle
+    is replaced at the next cell without a warning (nothing was lost), unless it died within
+    about a millisecond before the cell started: then the cell goes the first way.
   - *Interrupts.* Kept workers ignore SIGINT; a cell or scope left by an exception (Ctrl-C
-    included) terminates them at once. They also exit when this process dies.
+    included) terminates them at once. They also exit when this process dies; a large cell's
+    file left by a killed process is removed by the next scope.
 
 Processes are forked, so this needs the ``fork`` start method (Linux, macOS); elsewhere every
 chunk is computed in this process. One cell at a time per process uses a scope (one thread).
@@ -42,6 +47,7 @@ chunk is computed in this process. One cell at a time per process uses a scope (
 from __future__ import annotations
 
 import contextlib
+import io
 import itertools
 import logging
 import multiprocessing as mp
@@ -53,10 +59,12 @@ import sys
 import tempfile
 import threading
 import traceback
+import types
 import warnings
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
+from pathlib import Path
 from typing import Any
 
 from hbench import kernels
@@ -70,9 +78,7 @@ Piece = tuple[int, int]
 INLINE_LIMIT = 1 << 20
 
 
-def map_chunks(
-    fn: ChunkFn, work: Any, pieces: Sequence[Piece], jobs: int, classes: Sequence[type] = ()
-) -> Iterator[Any]:
+def map_chunks(fn: ChunkFn, work: Any, pieces: Sequence[Piece], jobs: int) -> Iterator[Any]:
     """``fn(work, *piece)`` for every piece, in order; with ``jobs > 1`` computed by this process
     (every ``jobs``-th piece: its memory is warm) and ``jobs - 1`` worker processes.
 
@@ -86,9 +92,6 @@ def map_chunks(
         The chunks.
     jobs : int
         Processes, this one included.
-    classes : sequence of type
-        The classes of the objects in ``work`` whose code kept workers must share with this
-        process (the cell's methods'); see the module docstring.
     """
     if jobs <= 1 or len(pieces) < 2 or "fork" not in mp.get_all_start_methods():
         for piece in pieces:
@@ -96,9 +99,9 @@ def map_chunks(
         return
     jobs = min(jobs, len(pieces))
     if _SCOPE is not None:
-        blob = _pickled(fn, work)
-        if blob is not None:
-            yield from _SCOPE.map(fn, work, blob, _roots(fn, classes), pieces, jobs)
+        pickled = _pickled(fn, work)
+        if pickled is not None:
+            yield from _SCOPE.map(fn, work, *pickled, pieces, jobs)
             return
     yield from _fork_for_cell(fn, work, pieces, jobs)
 
@@ -114,11 +117,19 @@ class _Collect(logging.Handler):
         self.records: list[logging.LogRecord] = []
 
     def emit(self, record: logging.LogRecord) -> None:
-        record.msg, record.args = record.getMessage(), None
-        if record.exc_info:
-            record.exc_text = logging.Formatter().formatException(record.exc_info)
-            record.exc_info = None
-        self.records.append(record)
+        try:
+            fields = dict(vars(record), msg=record.getMessage(), args=None, exc_info=None)
+            if record.exc_info:
+                fields["exc_text"] = logging.Formatter().formatException(record.exc_info)
+            for key, value in fields.items():  # extra= values that do not pickle: as text
+                try:
+                    pickle.dumps(value)
+                except Exception:
+                    fields[key] = repr(value)
+        except Exception:  # a bad format string, as logging itself reports it
+            self.handleError(record)
+            return
+        self.records.append(logging.makeLogRecord(fields))
 
 
 def _category(category: type[Warning]) -> type[Warning]:
@@ -152,18 +163,27 @@ def _in_worker(fn: ChunkFn, work: Any, piece: Piece) -> tuple[Any, list[Any], li
     return out, collect.records, found
 
 
-_WARNED: dict[Any, Any] = {}  # the registry of replayed warnings ("default": once per location)
+def _module_named(filename: str) -> types.ModuleType | None:
+    """The loaded module whose file is ``filename``."""
+    for module in list(sys.modules.values()):
+        if getattr(module, "__file__", None) == filename:
+            return module
+    return None
 
 
 def _replay(done: tuple[Any, list[Any], list[Any]]) -> Any:
-    """A worker's chunk result, its log records and warnings issued here."""
+    """A worker's chunk result, its log records and warnings issued here, as this process would
+    have issued them (module-specific filters and "once per location" registries included)."""
     out, records, found = done
     for record in records:
         logger = logging.getLogger(record.name)
         if logger.isEnabledFor(record.levelno):
             logger.handle(record)
     for message, category, filename, lineno in found:
-        warnings.warn_explicit(message, category, filename, lineno, registry=_WARNED)
+        module = _module_named(filename)
+        name = module.__name__ if module is not None else None
+        registry = vars(module).setdefault("__warningregistry__", {}) if module else None
+        warnings.warn_explicit(message, category, filename, lineno, name, registry)
     return out
 
 
@@ -199,20 +219,46 @@ class _Stale(Exception):
     outside the modules :func:`_snapshot` watches)."""
 
 
-def _pickled(fn: ChunkFn, work: Any) -> bytes | None:
-    """What a kept worker needs of a cell, or ``None`` where it does not pickle (classes and
-    functions travel by reference to their module, so a kept worker uses its own)."""
+#: Packages not watched for changes between cells (large compiled libraries: checking them
+#: would cost ~80 ms per cell; nobody patches them mid-sweep). The standard library isn't either.
+UNWATCHED = frozenset({"numpy", "scipy", "pandas", "pyarrow"})
+#: What a ``__main__`` module's names are compared for (not its variables).
+_CODE = (type, types.FunctionType, types.BuiltinFunctionType, types.ModuleType)
+
+
+class _Pickler(pickle.Pickler):
+    """A pickler noting the top-level packages of the functions, classes and objects' classes
+    (with their bases) it writes: the code a kept worker will run for the cell."""
+
+    def __init__(self, file: io.BytesIO) -> None:
+        super().__init__(file, protocol=pickle.HIGHEST_PROTOCOL)
+        self.roots: set[str] = set()
+
+    def reducer_override(self, obj: Any) -> Any:
+        classes = obj.__mro__ if isinstance(obj, type) else type(obj).__mro__
+        named = [*classes[:-1]]
+        if callable(obj) and not isinstance(obj, type):
+            named.append(obj)
+        for item in named:
+            module = getattr(item, "__module__", None)
+            if isinstance(module, str):
+                self.roots.add(module.partition(".")[0])
+        return NotImplemented
+
+
+def _pickled(fn: ChunkFn, work: Any) -> tuple[bytes, frozenset[str]] | None:
+    """What a kept worker needs of a cell and the packages to watch for it (see the module
+    docstring), or ``None`` where it does not pickle (classes and functions travel by reference
+    to their module, so a kept worker uses its own)."""
+    buf = io.BytesIO()
+    pickler = _Pickler(buf)
     try:
-        return pickle.dumps((fn, work, kernels._asked()), protocol=pickle.HIGHEST_PROTOCOL)
+        pickler.dump((fn, work, kernels._asked()))
     except Exception:  # PicklingError, AttributeError, TypeError, ValueError (ctypes), ...
         return None
-
-
-def _roots(fn: ChunkFn, classes: Sequence[type]) -> frozenset[str]:
-    """The top-level packages defining ``fn`` and ``classes`` (and their bases)."""
-    roots = {fn.__module__.partition(".")[0]}
-    roots.update(k.__module__.partition(".")[0] for c in classes for k in c.__mro__[:-1])
-    return frozenset(roots)
+    stdlib = getattr(sys, "stdlib_module_names", frozenset())
+    roots = {r for r in pickler.roots if r not in stdlib and r not in UNWATCHED}
+    return buf.getvalue(), frozenset(roots - {"builtins"})
 
 
 def _snapshot(roots: frozenset[str]) -> dict[tuple[str, str], Any]:
@@ -224,6 +270,8 @@ def _snapshot(roots: frozenset[str]) -> dict[tuple[str, str], Any]:
             continue
         snap[(name, "")] = module
         for key, value in list(vars(module).items()):
+            if name == "__main__" and not isinstance(value, _CODE):
+                continue  # a script's or notebook's variables change between cells
             snap[(name, key)] = value
             if isinstance(value, type) and value.__module__ == name:
                 for attr, v in list(vars(value).items()):
@@ -342,13 +390,13 @@ class KeptWorkers:
         theirs = [i for i in range(len(pieces)) if i % jobs]
         path = None
         sent: bytes | str = blob
-        if len(blob) > INLINE_LIMIT:  # once per cell through a file, not with every chunk
-            fd, path = tempfile.mkstemp(prefix="hbench-cell-", suffix=".pickle")
-            with os.fdopen(fd, "wb") as fh:
-                fh.write(blob)
-            sent = path
         ok = False
         try:
+            if len(blob) > INLINE_LIMIT:  # once per cell through a file, not with every chunk
+                fd, path = tempfile.mkstemp(prefix=f"hbench-cell-{os.getpid()}-", suffix=".pkl")
+                with os.fdopen(fd, "wb") as fh:
+                    fh.write(blob)
+                sent = path
             futures = dict(
                 zip(
                     theirs,
@@ -395,6 +443,20 @@ class KeptWorkers:
 _SCOPE: KeptWorkers | None = None
 
 
+def _remove_orphan_files() -> None:
+    """Remove the large cells' files of processes that are gone (killed mid-cell)."""
+    for path in Path(tempfile.gettempdir()).glob("hbench-cell-*-*.pkl"):
+        pid = path.name.split("-")[2]
+        if not pid.isdigit() or int(pid) == os.getpid():
+            continue
+        try:
+            os.kill(int(pid), 0)
+        except ProcessLookupError:
+            path.unlink(missing_ok=True)
+        except PermissionError:  # another user's live process
+            pass
+
+
 @contextlib.contextmanager
 def kept_workers() -> Iterator[KeptWorkers]:
     """Keep the worker processes of ``run_cell(..., jobs > 1)`` between cells for the duration.
@@ -415,6 +477,7 @@ def kept_workers() -> Iterator[KeptWorkers]:
     if _SCOPE is not None:
         yield _SCOPE
         return
+    _remove_orphan_files()
     _SCOPE = scope = KeptWorkers()
     ok = False
     try:

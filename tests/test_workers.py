@@ -11,10 +11,12 @@ import contextlib
 import ctypes
 import logging
 import os
+import re
 import signal
 import subprocess
 import sys
 import textwrap
+import threading
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -71,6 +73,20 @@ def talks(work: Work, start: int, n: int) -> tuple[int, int, int, str]:
     return whose(work, start, n)
 
 
+def warns_in_a_worker(work: Work, start: int, n: int) -> tuple[int, int, int, str]:
+    if os.getpid() != work.parent:
+        warnings.warn(f"chunk {start} warns", UserWarning, stacklevel=1)
+    return whose(work, start, n)
+
+
+def logs_badly(work: Work, start: int, n: int) -> tuple[int, int, int, str]:
+    log = logging.getLogger("hbench.test_workers")
+    if os.getpid() != work.parent:  # (pytest's log capture raises on a bad call here)
+        log.warning("value %d", "not a number")  # logging reports it and goes on
+    log.warning("with a lock", extra={"lock": threading.Lock()})  # does not pickle
+    return whose(work, start, n)
+
+
 def backend(work: Work, start: int, n: int) -> tuple[int, int, int, str]:
     return start, n, os.getpid(), kernels._asked()
 
@@ -80,8 +96,8 @@ def slow(work: Work, start: int, n: int) -> tuple[int, int, int, str]:
     return whose(work, start, n)
 
 
-def _run(fn, work, classes=()):
-    return list(workers.map_chunks(fn, work, PIECES, 2, classes=classes))
+def _run(fn, work):
+    return list(workers.map_chunks(fn, work, PIECES, 2))
 
 
 def _pids(cell):
@@ -125,7 +141,7 @@ def test_code_changed_after_the_fork_is_not_run_by_the_old_workers(monkeypatch, 
     the cell must compute with the new code everywhere, through workers forked anew."""
     module = sys.modules[__name__]
     with workers.kept_workers() as scope:
-        old = _run(whose, Work(os.getpid(), {"m": Tag()}), classes=[Tag])
+        old = _run(whose, Work(os.getpid(), {"m": Tag()}))
         assert {c[3] for c in old} == {"old1-v1"}
         cls = Tag
         if change == "class":
@@ -148,8 +164,8 @@ def test_code_changed_after_the_fork_is_not_run_by_the_old_workers(monkeypatch, 
         else:
             monkeypatch.setattr(module, "SUFFIX", "-v2")
             expected = "old1-v2"
-        new = _run(whose, Work(os.getpid(), {"m": cls()}), classes=[cls])
-        again = _run(whose, Work(os.getpid(), {"m": cls()}), classes=[cls])
+        new = _run(whose, Work(os.getpid(), {"m": cls()}))
+        again = _run(whose, Work(os.getpid(), {"m": cls()}))
     assert {c[3] for c in new} == {c[3] for c in again} == {expected}
     assert _pids(new).isdisjoint(_pids(old)) and os.getpid() not in _pids(new)
     assert _pids(again) == _pids(new)  # no change since: the same workers
@@ -167,7 +183,7 @@ def test_work_that_does_not_pickle_is_computed_by_workers_forked_for_the_cell(ki
     else:  # pickling a ctypes pointer raises ValueError
         work = Work(os.getpid(), payload=ctypes.pointer(ctypes.c_int(3)))
     with workers.kept_workers() as scope:
-        out = _run(whose, work, classes=[Local])
+        out = _run(whose, work)
         assert scope.pool is None  # no kept worker was started
     assert [c[:2] for c in out] == PIECES and os.getpid() not in _pids(out)
 
@@ -312,7 +328,10 @@ def test_kept_workers_exit_when_their_parent_is_killed():
     deadline = time.monotonic() + 10
     while any(_alive(pid) for pid in kids) and time.monotonic() < deadline:
         time.sleep(0.1)
-    assert not any(_alive(pid) for pid in kids)
+    left = [pid for pid in kids if _alive(pid)]
+    for pid in left:  # never leave them behind, even when failing
+        os.kill(pid, signal.SIGKILL)
+    assert not left
 
 
 def test_run_cell_in_a_kept_scope_gives_the_rows_of_one_process():
@@ -343,3 +362,72 @@ def test_run_cell_in_a_kept_scope_gives_the_rows_of_one_process():
     for a, b in zip(ref * 2, kept, strict=True):
         assert len(a) > 0
         pd.testing.assert_frame_equal(a, b, check_exact=True)
+
+
+@pytest.mark.parametrize("kept", [True, False])
+def test_a_bad_log_call_in_a_worker_does_not_fail_the_cell(caplog, kept):
+    with workers.kept_workers() if kept else contextlib.nullcontext():
+        with caplog.at_level(logging.WARNING, logger="hbench.test_workers"):
+            out = _run(logs_badly, Work(os.getpid()))
+    assert [c[:2] for c in out] == PIECES
+    locks = [r for r in caplog.records if r.getMessage() == "with a lock"]
+    assert len(locks) == len(PIECES)  # every chunk's record, this process's as they are
+    assert all(isinstance(r.lock, str) for r in locks if os.getpid() != r.process)
+
+
+@pytest.mark.parametrize("kept", [True, False])
+def test_a_module_filter_applies_to_a_workers_warnings(kept):
+    """``-W error::UserWarning:tests.test_workers`` (pytest's filterwarnings) must turn a
+    worker's warning into an error as it would this process's."""
+    with workers.kept_workers() if kept else contextlib.nullcontext():
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            warnings.filterwarnings("error", category=UserWarning, module=re.escape(__name__))
+            with pytest.raises(UserWarning, match="chunk 2 warns"):
+                _run(warns_in_a_worker, Work(os.getpid()))
+
+
+def test_orphan_files_of_dead_processes_are_removed_by_the_next_scope(tmp_path, monkeypatch):
+    monkeypatch.setattr("tempfile.tempdir", str(tmp_path))
+    dead = subprocess.run(
+        [sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True
+    ).stdout.strip()
+    orphan = tmp_path / f"hbench-cell-{dead}-abc.pkl"
+    mine = tmp_path / f"hbench-cell-{os.getpid()}-abc.pkl"
+    orphan.write_bytes(b"x")
+    mine.write_bytes(b"x")
+    with workers.kept_workers():
+        pass
+    assert not orphan.exists() and mine.exists()
+
+
+def test_a_scripts_loop_variables_do_not_refork_kept_workers():
+    """A method class and the cell loop in ``__main__`` (a script, a notebook): rebinding the
+    loop variable between cells is not a code change."""
+    body = """
+        import os
+        from hbench import workers
+        from tests.test_workers import PIECES
+
+        class Method:
+            def value(self):
+                return "main"
+
+        def chunk(work, start, n):
+            return start, n, os.getpid(), work.value()
+
+        with workers.kept_workers() as scope:
+            for i in range(3):
+                out = list(workers.map_chunks(chunk, Method(), PIECES, 2))
+                assert {c[3] for c in out} == {"main"}
+        print(scope.stats["forks"], scope.stats["remote"])
+        """
+    done = subprocess.run(
+        [sys.executable, "-c", textwrap.dedent(body)],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ["1", "9"]
