@@ -122,19 +122,24 @@ workers at the first cell with ``jobs > 1`` and shuts them down with the scope; 
 opens it around its jobs. The pool is :mod:`concurrent.futures`' (a worker that dies breaks the
 pool instead of hanging it: the cell's remaining worker chunks are computed in the parent with a
 warning; a worker killed while idle is replaced at the next cell); each cell's work is pickled
-once; before every cell the parent compares the modules of the cell's function and method
-classes with the moment of the fork (names and class attributes rebound, the working directory)
-and forks anew on a change; the kernel backend goes with every cell; workers ignore SIGINT and
-are terminated when a cell or the scope ends with an exception (a review found a double Ctrl-C
-hung the sweep) and exit when the parent dies; their log records and warnings are replayed in
-the parent. All of it is tested (``tests/test_workers.py``; each test fails with its feature
-removed). ``test_end_to_end[2-kept]`` measures it beside the fork per cell and one process: on
-an idle machine in a fast phase 2916 runs/s against 2409 and 1744 (627 page faults per cell
-against 37 062; 1.88 cores busy x 0.89), two independent processes 3273 (kept at 89 % of it, the
-fork per cell at 74 %); later, in a slow phase, 1818 against 1460 and 1299, the pair 2089 (87 %
-and 70 %). Six back-to-back cells, three blocks of each, alternating (fast phase): kept 2316-3184
-runs/s after the first cell, fork per cell 1921-2579. The rows are the same bits as one
-process's (tested, and asserted by the benchmark). The parent's check costs ~2 ms per cell.
+once; before every cell the parent compares the packages the pickled work names (functions,
+classes, objects' classes and their bases) with the moment of the fork (names and class
+attributes rebound, the working directory) and forks anew on a change; the kernel backend goes
+with every cell; workers ignore SIGINT and are terminated when a cell or the scope ends with an
+exception (a review found a double Ctrl-C hung the sweep) and exit when the parent dies; their
+log records and warnings are replayed in the parent with their module. All of it is tested
+(``tests/test_workers.py``; each test fails with its feature removed); two review rounds.
+
+``test_end_to_end[2-kept]`` measures it beside the fork per cell and one process, three rounds
+each, and the machine's noise is larger than the difference in a single run: 2916 against 2409
+runs/s (one process 1744, the pair 3273) on an idle machine in a fast phase; 1818 against 1460
+later; 2441 against 2077 and then 1771 against 1972 in two consecutive runs; the CI run on
+b4ec418: 2032 against 2041 (one process 1502, the pair 2329; kept at 87 % of it, the fork per
+cell at 88 %). Page faults per cell drop from ~37 000 to ~1 200 every time. Interleaved blocks
+(5 timed cells per block after one untimed, 4 blocks of each, alternating, in one process): the
+median cell 1989 against 1673 runs/s (1.19x) and, in a second run, 2612 against 1782 (1.47x);
+best cells 2785 and 2895 against 2049 and 2360. The rows are the same bits as one process's
+(tested, and asserted by the benchmark). The parent's check costs ~2 ms per cell.
 """
 
 from __future__ import annotations
