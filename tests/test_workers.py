@@ -230,9 +230,20 @@ def test_a_worker_dying_mid_cell_loses_no_chunk():
     assert scope.stats["fallback"] == 1 and scope.stats["forks"] == 2
 
 
+def _script(body: str) -> subprocess.CompletedProcess[str]:
+    """``body`` in a fresh interpreter with a time limit: a hang fails instead of hanging the
+    suite."""
+    return subprocess.run(
+        [sys.executable, "-c", textwrap.dedent(body)],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+
+
 def test_a_worker_killed_while_idle_does_not_hang_the_next_cell():
-    """Session 9's kept ``multiprocessing.Pool`` waited forever here: run in a subprocess with a
-    time limit, so a regression fails instead of hanging the suite."""
+    """Session 9's kept ``multiprocessing.Pool`` waited forever here."""
     body = """
         import os, signal, time, warnings
         from hbench import workers
@@ -250,13 +261,7 @@ def test_a_worker_killed_while_idle_does_not_hang_the_next_cell():
         assert pid not in {c[2] for c in second}
         print("ok")
         """
-    done = subprocess.run(
-        [sys.executable, "-c", textwrap.dedent(body)],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    done = _script(body)
     assert done.returncode == 0 and done.stdout.strip() == "ok", done.stderr
 
 
@@ -422,12 +427,6 @@ def test_a_scripts_loop_variables_do_not_refork_kept_workers():
                 assert {c[3] for c in out} == {"main"}
         print(scope.stats["forks"], scope.stats["remote"])
         """
-    done = subprocess.run(
-        [sys.executable, "-c", textwrap.dedent(body)],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    done = _script(body)
     assert done.returncode == 0, done.stderr
     assert done.stdout.split() == ["1", "9"]
