@@ -135,7 +135,8 @@ each, and the machine's noise is larger than the difference in a single run: 291
 runs/s (one process 1744, the pair 3273) on an idle machine in a fast phase; 1818 against 1460
 later; 2441 against 2077 and then 1771 against 1972 in two consecutive runs; the CI run on
 b4ec418: 2032 against 2041 (one process 1502, the pair 2329; kept at 87 % of it, the fork per
-cell at 88 %). Page faults per cell drop from ~37 000 to ~1 200 every time. Interleaved blocks
+cell at 88 %); the CI run on f9aab98: 2780 against 2389 (one process 1713, the pair 3100; 90 %
+and 77 %). Page faults per cell drop from ~37 000 to ~1 200 every time. Interleaved blocks
 (5 timed cells per block after one untimed, 4 blocks of each, alternating, in one process): the
 median cell 1989 against 1673 runs/s (1.19x) and, in a second run, 2612 against 1782 (1.47x);
 best cells 2785 and 2895 against 2049 and 2360. The rows are the same bits as one process's
