@@ -106,6 +106,11 @@ def map_chunks(fn: ChunkFn, work: Any, pieces: Sequence[Piece], jobs: int) -> It
     yield from _fork_for_cell(fn, work, pieces, jobs)
 
 
+def _theirs(count: int, jobs: int) -> list[int]:
+    """The pieces the workers compute: all but every ``jobs``-th (this process's, warm)."""
+    return [i for i in range(count) if i % jobs]
+
+
 # --- what every worker does: compute a chunk, bring back its logs and warnings ---------------
 
 
@@ -199,14 +204,14 @@ def _forked_chunk(piece: Piece) -> tuple[Any, list[Any], list[Any]]:
 
 def _fork_for_cell(fn: ChunkFn, work: Any, pieces: Sequence[Piece], jobs: int) -> Iterator[Any]:
     global _FORKED
-    mine = set(range(0, len(pieces), jobs))
-    theirs = [piece for i, piece in enumerate(pieces) if i not in mine]
+    theirs = set(_theirs(len(pieces), jobs))
     _FORKED = (fn, work)
     try:
         with mp.get_context("fork").Pool(jobs - 1, initializer=_watch_parent) as pool:
-            done = pool.imap(_forked_chunk, theirs)  # dispatched at once, computed meanwhile
+            # dispatched at once, computed meanwhile
+            done = pool.imap(_forked_chunk, [pieces[i] for i in sorted(theirs)])
             for i, piece in enumerate(pieces):
-                yield fn(work, *piece) if i in mine else _replay(next(done))
+                yield _replay(next(done)) if i in theirs else fn(work, *piece)
     finally:
         _FORKED = None
 
@@ -355,19 +360,20 @@ class KeptWorkers:
     def _submit(
         self, size: int, roots: frozenset[str], args: list[tuple[Any, ...]]
     ) -> list[Future[Any]]:
+        watched = self.roots | roots
+        now = _snapshot(watched)  # compared with the fork's; recorded if the workers are forked
         if self.pool is not None and (
             self.size < size
-            or not roots <= self.roots  # packages not watched since the fork
-            or _changed(self.forked, _snapshot(self.roots))
+            or watched != self.roots  # packages not watched since the fork
+            or _changed(self.forked, now)
         ):
             self.close()  # more workers wanted, or code changed since the fork: fork anew
         for attempt in range(2):
             if self.pool is None:
-                self.roots |= roots
                 self.pool = ProcessPoolExecutor(
                     size, mp_context=mp.get_context("fork"), initializer=_watch_parent
                 )
-                self.size, self.forked = size, _snapshot(self.roots)
+                self.size, self.forked, self.roots = size, now, watched
                 self.stats["forks"] += 1
             try:
                 return [self.pool.submit(_kept_chunk, *a) for a in args]
@@ -387,7 +393,7 @@ class KeptWorkers:
         jobs: int,
     ) -> Iterator[Any]:
         token = next(self.tokens)
-        theirs = [i for i in range(len(pieces)) if i % jobs]
+        theirs = _theirs(len(pieces), jobs)
         path = None
         sent: bytes | str = blob
         ok = False
