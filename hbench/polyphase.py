@@ -23,7 +23,7 @@ from scipy import signal
 from scipy.linalg import lapack
 
 from hbench import kernels
-from hbench.ordered import ordered_products
+from hbench.ordered import cholesky_inverse, ordered_products
 
 _RCOND = 1e-12
 
@@ -268,8 +268,23 @@ def quiet_regression(
     return QuietRegression(dy, lm, na, phases, shift, fast)
 
 
+#: :func:`_pinv_sym` inverts through the Cholesky factor below this bound on the condition number
+#: (far below ``1 / _RCOND``, so the pseudo-inverse would cut nothing there)
+_CHOLESKY_COND = 1e9
+
+
 def _pinv_sym(Rm: np.ndarray) -> np.ndarray:
-    return np.linalg.pinv(Rm, rcond=_RCOND, hermitian=True)
+    """``Rm^+`` of symmetric positive semi-definite matrices ``(..., n, n)``: the inverse through
+    the Cholesky factor (:func:`hbench.ordered.cholesky_inverse`) where ``tr(Rm) tr(Rm^-1)`` (a
+    bound on the condition number) is below :data:`_CHOLESKY_COND`, and ``np.linalg.pinv``
+    (``eigh``, eigenvalues below ``_RCOND`` times the largest cut) for the others, e.g. an order
+    above the true one on noise-free data. Both are the pseudo-inverse to rounding; the first is
+    ~10x faster on the regressions' 1x1 .. 5x5 matrices. C-ordered."""
+    X, ok = cholesky_inverse(Rm, _CHOLESKY_COND)
+    if not ok.all():
+        bad = ~ok
+        X[bad] = np.linalg.pinv(Rm[bad], rcond=_RCOND, hermitian=True)
+    return X
 
 
 def ols(reg: QuietRegression) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

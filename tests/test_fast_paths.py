@@ -585,3 +585,54 @@ def test_iv_products_a_few_runs_at_a_time_are_the_whole_batchs(monkeypatch, phas
         np.testing.assert_array_equal(a, b)
     one = pp.quiet_regression(dy[20:21], 5, 2, phases, 3, moments=lm.take(np.array([20])))
     np.testing.assert_array_equal(pp.iv_moments(one, record.r[20:21], 6), blocked[0][20:21])
+
+
+def _gram_stack(rng: np.random.Generator, count: int, n: int, rows: int = 40) -> np.ndarray:
+    Z = rng.standard_normal((count, rows, n)) * np.exp(rng.uniform(-2, 2, (count, 1, n)))
+    return np.einsum("bti,btj->bij", Z, Z) / rows
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 4, 5, 7])
+def test_cholesky_inverse_is_the_pseudo_inverse_of_well_conditioned_matrices(n: int) -> None:
+    """Tolerance: both are backward stable, so they agree to ~cond * eps (cond here < 1e6,
+    checked; 1e-9 relative to the inverse's largest entry)."""
+    from hbench.ordered import cholesky_inverse
+
+    A = _gram_stack(np.random.default_rng(n), 300, n)
+    X, ok = cholesky_inverse(A)
+    assert ok.all() and X.flags.c_contiguous
+    assert np.linalg.cond(A).max() < 1e6
+    P = np.linalg.pinv(A, rcond=1e-12, hermitian=True)
+    scale = np.abs(P).max(axis=(1, 2), keepdims=True)
+    np.testing.assert_array_less(np.abs(X - P) / scale, 1e-9)
+    np.testing.assert_array_equal(X, np.swapaxes(X, 1, 2))  # symmetric, exactly
+    # a matrix's inverse does not depend on the others of the stack (elementwise arithmetic)
+    for i in (0, 7, 299):
+        np.testing.assert_array_equal(cholesky_inverse(A[i : i + 1])[0][0], X[i])
+        np.testing.assert_array_equal(cholesky_inverse(A[i])[0], X[i])  # one matrix, no stack
+
+
+def test_singular_and_bad_matrices_go_to_the_pseudo_inverse() -> None:
+    """Singular (an order above the true one on noise-free data), ill-conditioned beyond the
+    bound, indefinite and non-finite matrices are not accepted; ``_pinv_sym`` gives numpy's
+    pseudo-inverse for them, bit for bit, and the inverse for the others."""
+    from hbench.ordered import cholesky_inverse
+
+    rng = np.random.default_rng(3)
+    A = _gram_stack(rng, 6, 3)
+    Z = rng.standard_normal((40, 2))
+    singular = np.column_stack([Z, Z[:, 0] - 2.0 * Z[:, 1]])
+    A[1] = singular.T @ singular / 40
+    A[2] = np.diag([1.0, 1.0, 1e-10])  # condition 1e10: over the bound, under 1 / rcond
+    A[3] = np.diag([1.0, -1.0, 1.0])
+    A[4, 0, 0] = np.nan
+    ok = cholesky_inverse(A)[1]
+    np.testing.assert_array_equal(ok, [True, False, False, False, False, True])
+    with pytest.raises(np.linalg.LinAlgError):  # as numpy's pinv alone does with a nan
+        pp._pinv_sym(A)
+    A, ok = np.delete(A, 4, axis=0), np.delete(ok, 4)
+    X = pp._pinv_sym(A)
+    bad = ~ok
+    np.testing.assert_array_equal(X[bad], np.linalg.pinv(A[bad], rcond=1e-12, hermitian=True))
+    np.testing.assert_array_equal(X[ok], cholesky_inverse(A[ok])[0])
+    assert np.abs(X[1] @ A[1] @ X[1] - X[1]).max() < 1e-8 * np.abs(X[1]).max()  # a pinv's identity
