@@ -398,9 +398,11 @@ static void thomas_sym(int64_t n, const double *diag, const double *off, const d
 }
 
 /*
- * Eq. (27) through its tridiagonal normal equations (polyphase.inner_signal_ls) for R runs: W
- * (R x M x p, zero where the sample does not exist), valid (M x p, 0/1), channel coefficients h0
- * and h1 (R x p); U (R x (M + 1)) receives U~(n0 - 1 ..), nan for an unknown in no equation.
+ * Eq. (27) through its tridiagonal normal equations (polyphase.inner_signal_ls) for R runs: the
+ * blocks of run r are W[r * row_stride + start + k p + i] (period k < M, channel i < p), read
+ * only where valid (M x p, 0/1) and taken as 0 elsewhere (W the blocks R x M x p with row_stride
+ * M p and start 0, or the rows of w in place); channel coefficients h0 and h1 (R x p); U
+ * (R x (M + 1)) receives U~(n0 - 1 ..), nan for an unknown in no equation.
  * Channel sums run from the first term. The solve is LAPACK dptsv's arithmetic (reference dpttrf,
  * then dptts2); a run with a non-finite entry, or not positive definite, or of one unknown,
  * takes the Thomas loop, as the numpy path does. The solve's recurrences are chains of divisions:
@@ -408,8 +410,8 @@ static void thomas_sym(int64_t n, const double *diag, const double *off, const d
  * so its numbers, are those of a solve on its own).
  */
 HB_EXPORT int hb_inner_signal_ls(int64_t R, int64_t M, int64_t p, const double *W,
-                                 const uint8_t *valid, const double *h0, const double *h1,
-                                 double *U)
+                                 int64_t row_stride, int64_t start, const uint8_t *valid,
+                                 const double *h0, const double *h1, double *U)
 {
     const int64_t n = M + 1, G = HB_GROUP;
     /* per group member: diag, off, rhs, x, d, e, free flags; then Thomas scratch c, dd */
@@ -422,7 +424,7 @@ HB_EXPORT int hb_inner_signal_ls(int64_t R, int64_t M, int64_t p, const double *
         int lapack[HB_GROUP];
         for (int64_t g = 0; g < g_n; g++) {
             int64_t r = r0 + g;
-            const double *g0 = h0 + r * p, *g1 = h1 + r * p, *Wr = W + r * M * p;
+            const double *g0 = h0 + r * p, *g1 = h1 + r * p, *Wr = W + r * row_stride + start;
             double *diag = DIAG + g * n, *off = OFF + g * n, *rhs = RHS + g * n;
             double *freed = FREE + g * n;
             double prev22 = 0.0, prev2 = 0.0;
@@ -434,13 +436,15 @@ HB_EXPORT int hb_inner_signal_ls(int64_t R, int64_t M, int64_t p, const double *
                     double s11 = (g1[0] * g1[0]) * (double)v[0];
                     double s22 = (g0[0] * g0[0]) * (double)v[0];
                     double s12 = (g0[0] * g1[0]) * (double)v[0];
-                    double t1 = w[0] * g1[0], t2 = w[0] * g0[0];
+                    double w0 = v[0] ? w[0] : 0.0;
+                    double t1 = w0 * g1[0], t2 = w0 * g0[0];
                     for (int64_t i = 1; i < p; i++) {
+                        double wi = v[i] ? w[i] : 0.0;
                         s11 = s11 + (g1[i] * g1[i]) * (double)v[i];
                         s22 = s22 + (g0[i] * g0[i]) * (double)v[i];
                         s12 = s12 + (g0[i] * g1[i]) * (double)v[i];
-                        t1 = t1 + w[i] * g1[i];
-                        t2 = t2 + w[i] * g0[i];
+                        t1 = t1 + wi * g1[i];
+                        t2 = t2 + wi * g0[i];
                     }
                     dg = dg + s11;
                     rh = rh + t1;

@@ -119,7 +119,7 @@ def _library() -> tuple[ctypes.CDLL | None, str]:
     lib.hb_lfilter_rows.restype = ctypes.c_int
     lib.hb_lfilter_rows.argtypes = [*(_I64,) * 3, _F64, _F64, ctypes.c_void_p, _I64, _F64]
     lib.hb_inner_signal_ls.restype = ctypes.c_int
-    lib.hb_inner_signal_ls.argtypes = [*(_I64,) * 3, _F64, _U8, _F64, _F64, _F64]
+    lib.hb_inner_signal_ls.argtypes = [*(_I64,) * 3, _F64, *(_I64,) * 2, _U8, _F64, _F64, _F64]
     return lib, ""
 
 
@@ -407,30 +407,62 @@ def _lfilter_rows(num: np.ndarray, den: np.ndarray, x: np.ndarray) -> np.ndarray
 
 
 def inner_signal_ls(
-    W: np.ndarray, valid: np.ndarray, h0: np.ndarray, h1: np.ndarray
+    W: np.ndarray,
+    valid: np.ndarray,
+    h0: np.ndarray,
+    h1: np.ndarray,
+    *,
+    start: int | None = None,
 ) -> np.ndarray | None:
     """``U~`` of eq. (27) (:func:`hbench.polyphase.inner_signal_ls`) from the SIMO blocks ``W``
-    ``(runs, M, p)``, their validity ``(M, p)`` and the channel coefficients ``(runs, p)``,
-    compiled; ``None`` when the numpy path must run (also where this machine's LAPACK ``dptsv``
-    does not compute as the reference ``dpttrf``/``dpttrs`` the kernel mirrors: see
-    :func:`lapack_is_reference`)."""
+    ``(runs, M, p)`` (or, with ``start``, from the rows of ``w`` ``(runs, N)`` read in place:
+    ``W[:, k, i] = w[:, start + k p + i]``), their validity ``(M, p)`` and the channel
+    coefficients ``(runs, p)``, compiled; ``None`` when the numpy path must run (also where
+    this machine's LAPACK ``dptsv`` does not compute as the reference ``dpttrf``/``dpttrs`` the
+    kernel mirrors: see :func:`lapack_is_reference`). Entries that are not ``valid`` are taken
+    as 0, never read."""
     if _compiled() is None or not lapack_is_reference():
         return None
-    return _inner_signal_ls(W, valid, h0, h1)
+    return _inner_signal_ls(W, valid, h0, h1, start)
 
 
 def _inner_signal_ls(
-    W: np.ndarray, valid: np.ndarray, h0: np.ndarray, h1: np.ndarray
+    W: np.ndarray,
+    valid: np.ndarray,
+    h0: np.ndarray,
+    h1: np.ndarray,
+    start: int | None = None,
 ) -> np.ndarray | None:
     lib = _library()[0]  # the build, whatever the switch (the public wrapper reads that)
-    if lib is None or W.ndim != 3 or valid.ndim != 2 or h0.ndim != 2 or h1.ndim != 2:
+    if lib is None or valid.ndim != 2 or h0.ndim != 2 or h1.ndim != 2:
         return None
-    R, M, p = W.shape
-    if valid.shape != (M, p) or h0.shape != (R, p) or h1.shape != (R, p) or p < 1:
+    M, p = valid.shape
+    R = W.shape[0]
+    if start is None:  # the blocks
+        if W.shape != (R, M, p):
+            return None
+        start, row_stride = 0, M * p
+    else:  # the rows of w: every valid sample must lie in them
+        if W.ndim != 2 or start < 0:
+            return None
+        cells = np.flatnonzero(valid)
+        if cells.size and start + int(cells[-1]) >= W.shape[1]:  # flat index k p + i
+            return None
+        row_stride = W.shape[1]
+    if h0.shape != (R, p) or h1.shape != (R, p) or p < 1:
         return None
     U = np.empty((R, M + 1))
     rc = lib.hb_inner_signal_ls(
-        R, M, p, _f64(W), np.ascontiguousarray(valid, dtype=np.uint8), _f64(h0), _f64(h1), U
+        R,
+        M,
+        p,
+        _f64(W),
+        row_stride,
+        int(start),
+        np.ascontiguousarray(valid, dtype=np.uint8),
+        _f64(h0),
+        _f64(h1),
+        U,
     )
     if rc != 0:
         raise RuntimeError(f"hb_inner_signal_ls failed with code {rc}")

@@ -14,7 +14,6 @@ structure (na, nb, tau); callers group runs by structure.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -608,17 +607,48 @@ def _thomas(lower: np.ndarray, diag: np.ndarray, upper: np.ndarray, rhs: np.ndar
     return x
 
 
-@dataclass(frozen=True)
 class SimoSystem:
     """The stacked SIMO equations (26) for the periods ``n = n0 .. n0 + M - 1``.
 
-    ``W[r, j, i] = w(p (n0 + j) + i + shift)`` (i = 1..p, nan where the sample does not exist);
-    unknowns ``U~(n0 - 1) .. U~(n0 + M - 1)`` (``M + 1`` of them).
+    ``W[r, j, i] = w(p (n0 + j) + i + shift)`` (i = 1..p) where ``valid[j, i]`` (the sample
+    exists), 0 where it does not (such entries are never read); unknowns
+    ``U~(n0 - 1) .. U~(n0 + M - 1)`` (``M + 1`` of them).
+
+    Give the blocks ``W`` ``(runs, M, p)``, or the rows ``source`` ``(runs, N)`` of ``w`` with
+    ``start``, the sample of ``W[:, 0, 0]``: then ``W`` is laid out on first use (the compiled
+    eq. (27) reads ``source`` in place and never forms it). ``source`` is not copied: leave it
+    unchanged while the system is in use.
     """
 
-    W: np.ndarray
-    valid: np.ndarray
-    n0: int
+    def __init__(
+        self,
+        W: np.ndarray | None = None,
+        valid: np.ndarray | None = None,
+        n0: int = 1,
+        *,
+        source: np.ndarray | None = None,
+        start: int = 0,
+    ) -> None:
+        if (W is None) == (source is None) or valid is None:
+            raise ValueError("a SIMO system needs valid and either W or source")
+        self._W, self.valid, self.n0 = W, valid, int(n0)
+        self.source, self.start = source, int(start)
+
+    @property
+    def W(self) -> np.ndarray:
+        """The blocks ``(runs, M, p)``, zero where the sample does not exist."""
+        if self._W is None:
+            assert self.source is not None
+            R, N = self.source.shape
+            M, p = self.valid.shape
+            avail = min(M * p, N - self.start)
+            # the samples of consecutive periods are consecutive: one slice, reshaped, no gather
+            W = np.zeros((R, M * p))
+            W[:, :avail] = self.source[:, self.start : self.start + avail]
+            W = W.reshape(R, M, p)
+            W[:, ~self.valid] = 0.0
+            self._W = W
+        return self._W
 
 
 def simo_periods(N: int, p: int, shift: int, t_min: int) -> tuple[int, int]:
@@ -630,7 +660,8 @@ def simo_periods(N: int, p: int, shift: int, t_min: int) -> tuple[int, int]:
 
 
 def simo_system(w: np.ndarray, p: int, shift: int, t_min: int) -> SimoSystem:
-    """Arrange ``w`` into the SIMO blocks of (23); periods with no valid sample are dropped."""
+    """The SIMO blocks of (23) from ``w``; periods with no valid sample are dropped. The blocks
+    are laid out when first used (:attr:`SimoSystem.W`)."""
     N = w.shape[1]
     n0, M = simo_periods(N, p, shift, t_min)
     n = np.arange(n0, n0 + M)
@@ -638,14 +669,7 @@ def simo_system(w: np.ndarray, p: int, shift: int, t_min: int) -> SimoSystem:
     valid = (t >= t_min) & (t < N)
     if n.size == 0:
         return SimoSystem(W=np.zeros((w.shape[0], 0, p)), valid=valid, n0=int(n0))
-    # the samples of consecutive periods are consecutive: one slice, reshaped, no gather
-    start, M = int(t[0, 0]), n.size
-    avail = min(M * p, N - start)
-    W = np.zeros((w.shape[0], M * p))
-    W[:, :avail] = w[:, start : start + avail]
-    W = W.reshape(w.shape[0], M, p)
-    W[:, ~valid] = 0.0
-    return SimoSystem(W=W, valid=valid, n0=int(n0))
+    return SimoSystem(valid=valid, n0=int(n0), source=w, start=int(t[0, 0]))
 
 
 def _validity_patterns(valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -680,7 +704,10 @@ def inner_signal_ls(sys: SimoSystem, h0: np.ndarray, h1: np.ndarray) -> np.ndarr
     """
     R = h0.shape[0]
     M = sys.valid.shape[0]
-    compiled = kernels.inner_signal_ls(sys.W, sys.valid, h0, h1)
+    if sys.source is not None and sys._W is None:  # w read in place, the blocks never formed
+        compiled = kernels.inner_signal_ls(sys.source, sys.valid, h0, h1, start=sys.start)
+    else:
+        compiled = kernels.inner_signal_ls(sys.W, sys.valid, h0, h1)
     if compiled is not None:
         return compiled
     # sums over the valid channels of each period. Periods share a handful of validity
@@ -690,7 +717,7 @@ def inner_signal_ls(sys: SimoSystem, h0: np.ndarray, h1: np.ndarray) -> np.ndarr
     def per_period(h2: np.ndarray) -> np.ndarray:
         return take_periods(ordered_products(h2, np.ascontiguousarray(Vp.T)), which)
 
-    W = sys.W
+    W = sys.W if sys.valid.all() else np.where(sys.valid, sys.W, 0.0)  # as the kernel reads
     # equation block j couples unknowns j (= U(n-1)) and j+1 (= U(n))
     a11 = per_period(h1**2)  # coefficient of U(n-1)^2
     a22 = per_period(h0**2)

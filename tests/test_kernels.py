@@ -273,6 +273,26 @@ def test_inner_signal_ls_is_the_numpy_path(p: int, M: int) -> None:
 
 
 @needs_build
+def test_inner_signal_ls_reads_w_in_place_as_the_blocks() -> None:
+    """:func:`hbench.polyphase.simo_system` leaves ``w`` in place: the kernel reads it where a
+    sample exists (never past the record's end, nor before ``t_min``), the same numbers as the
+    blocks ``W``; entries of ``W`` marked missing are ignored by both paths, whatever they hold."""
+    sys, h0, h1 = _eq27_cases(5, 120)
+    assert sys._W is None and not sys.valid.all()  # record ends with missing samples
+    in_place = pp.inner_signal_ls(sys, h0, h1)
+    assert sys._W is None  # the blocks were not formed
+    blocks = kernels.inner_signal_ls(sys.W, sys.valid, h0, h1)
+    np.testing.assert_array_equal(in_place, blocks)
+    garbage = pp.SimoSystem(W=np.where(sys.valid, sys.W, np.nan), valid=sys.valid, n0=sys.n0)
+    np.testing.assert_array_equal(pp.inner_signal_ls(garbage, h0, h1), in_place)
+    with kernels.use("numpy"):
+        np.testing.assert_array_equal(pp.inner_signal_ls(garbage, h0, h1), in_place)
+    # a valid sample past the rows: refused (the numpy path runs), never read out of bounds
+    short = sys.source[:, : sys.start + sys.valid.size - 1]
+    assert kernels.inner_signal_ls(short, np.ones_like(sys.valid), h0, h1, start=sys.start) is None
+
+
+@needs_build
 def test_an_overflowing_run_leaves_its_neighbours_alone() -> None:
     """A run whose solution overflows (inf) would turn its predecessor in the batched LAPACK
     system into nan (inf times the zero coupling): such runs are solved again on their own, as the
