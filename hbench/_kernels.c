@@ -40,116 +40,151 @@ static inline double np_sign(double a) { return a > 0 ? 1.0 : (a < 0 ? -1.0 : (a
  * nc states, then a delay line of `delay` samples. Actuator: `code` with parameters `prm` and
  * the state `nl_state` (R x 5: x_prev, u_prev, x_ss, direction, stuck), updated in place.
  * Outputs y0 (R x K p), X and U (R x K).
+ *
+ * The runs are stepped HB_LANES at a time, period after period, each operation over the lanes in
+ * a loop the compiler vectorises (states laid out lane-minor): a lane's operations, and so a
+ * run's numbers, are those of a loop over that run alone. Lanes past the last run compute on
+ * zeros and are not written out.
  */
+#define HB_LANES 4
+
+/* the actuator for one run: input x, state st (5), returns u */
+static inline double actuator(int64_t code, const double *prm, double x, double *st)
+{
+    double u;
+    switch (code) {
+    case NL_LINEAR:
+        u = prm[0] * x;
+        break;
+    case NL_DEADBAND:
+        u = prm[2] * (x - np_min(np_max(x, -prm[0]), prm[1]));
+        break;
+    case NL_SATURATION:
+        u = np_min(np_max(x, prm[0]), prm[1]);
+        break;
+    case NL_BACKLASH: {
+        double half = prm[0] / 2;
+        u = np_max(x - half, np_min(x + half, st[1]));
+        st[1] = u;
+        break;
+    }
+    case NL_STICTION: {
+        double S = prm[0], J = prm[1], d = st[3];
+        int stuck = st[4] != 0.0;
+        int sticks = !stuck && (np_sign(x - st[0]) != d);
+        double x_ss = sticks ? st[0] : st[2];
+        stuck = stuck || sticks;
+        double ahead = d * (x - x_ss);
+        int reverse = stuck && (-ahead > S);
+        int go_on = stuck && (ahead > J);
+        if (reverse) d = -d;
+        stuck = stuck && !(reverse || go_on);
+        u = stuck ? st[1] : x - d * ((S - J) / 2);
+        st[0] = x;
+        st[1] = u;
+        st[2] = x_ss;
+        st[3] = d;
+        st[4] = stuck ? 1.0 : 0.0;
+        break;
+    }
+    default: { /* NL_STICTION_HE (the code is checked before the loop) */
+        double eu = x - st[1];
+        u = fabs(eu) > prm[0] ? x - np_sign(eu) * prm[1] : st[1];
+        st[1] = u;
+        break;
+    }
+    }
+    return u;
+}
+
 HB_EXPORT int hb_closed_loop(int64_t R, int64_t K, int64_t L, int64_t p, const double *Fp, const double *Gp,
                    const double *Ob, const double *Db, int64_t nc, const double *Ac,
                    const double *Bc, const double *Cc, double Dc, int64_t delay, int64_t code,
                    const double *prm, double *nl_state, const double *r, const double *v_slow,
                    double *y0, double *X, double *U)
 {
-    double s[64], sn[64], sc[64], scn[64];
-    double *buf = NULL;
+    enum { G = HB_LANES };
+    const int64_t nd = delay > 0 ? delay : 1;
     if (L > 64 || nc > 64) return -1;
-    if (delay > 0) {
-        buf = (double *)malloc(sizeof(double) * (size_t)delay);
-        if (!buf) return -2;
-    }
-    for (int64_t i = 0; i < R; i++) {
-        const double *ri = r + i * K, *vi = v_slow + i * K;
-        double *yi = y0 + i * K * p, *Xi = X + i * K, *Ui = U + i * K, *st = nl_state + i * 5;
-        for (int64_t l = 0; l < L; l++) s[l] = 0.0;
-        for (int64_t l = 0; l < nc; l++) sc[l] = 0.0;
-        for (int64_t l = 0; l < delay; l++) buf[l] = 0.0;
+    if (code < NL_LINEAR || code > NL_STICTION_HE) return -3;
+    /* lane-minor: s[l * G + g] is state l of lane g */
+    double *mem = (double *)malloc(sizeof(double) * (size_t)(G * (2 * L + 2 * nc + nd)));
+    if (!mem) return -2;
+    double *s = mem, *sn = s + G * L, *sc = sn + G * L, *scn = sc + G * nc, *buf = scn + G * nc;
+    double dummy[G][5];
+    for (int64_t r0 = 0; r0 < R; r0 += G) {
+        const int64_t g_n = R - r0 < G ? R - r0 : G;
+        double *st[G];
+        for (int64_t k = 0; k < G * (2 * L + 2 * nc + nd); k++) mem[k] = 0.0;
+        for (int g = 0; g < G; g++) {
+            for (int k = 0; k < 5; k++) dummy[g][k] = 0.0;
+            st[g] = g < g_n ? nl_state + (r0 + g) * 5 : dummy[g];
+        }
         for (int64_t n = 0; n < K; n++) {
-            double yp = 0.0, acc, x, u;
-            if (L) {
-                yp = s[0] * Ob[0];
-                for (int64_t l = 1; l < L; l++) yp = yp + s[l] * Ob[l];
+            double yp[G], e[G], x[G], u[G], acc[G], in_r[G], in_v[G];
+            for (int g = 0; g < G; g++) {
+                in_r[g] = g < g_n ? r[(r0 + g) * K + n] : 0.0;
+                in_v[g] = g < g_n ? v_slow[(r0 + g) * K + n] : 0.0;
             }
-            double e = ri[n] - (yp + vi[n]);
-            x = Dc * e;
+            if (L) {
+                for (int g = 0; g < G; g++) yp[g] = s[g] * Ob[0];
+                for (int64_t l = 1; l < L; l++)
+                    for (int g = 0; g < G; g++) yp[g] = yp[g] + s[l * G + g] * Ob[l];
+            } else {
+                for (int g = 0; g < G; g++) yp[g] = 0.0;
+            }
+            for (int g = 0; g < G; g++) {
+                e[g] = in_r[g] - (yp[g] + in_v[g]);
+                x[g] = Dc * e[g];
+            }
             if (nc) {
-                acc = sc[0] * Cc[0];
-                for (int64_t l = 1; l < nc; l++) acc = acc + sc[l] * Cc[l];
-                x = x + acc;
+                for (int g = 0; g < G; g++) acc[g] = sc[g] * Cc[0];
+                for (int64_t l = 1; l < nc; l++)
+                    for (int g = 0; g < G; g++) acc[g] = acc[g] + sc[l * G + g] * Cc[l];
+                for (int g = 0; g < G; g++) x[g] = x[g] + acc[g];
                 for (int64_t m = 0; m < nc; m++) {
-                    acc = sc[0] * Ac[m * nc];
-                    for (int64_t l = 1; l < nc; l++) acc = acc + sc[l] * Ac[m * nc + l];
-                    scn[m] = acc + e * Bc[m];
+                    for (int g = 0; g < G; g++) acc[g] = sc[g] * Ac[m * nc];
+                    for (int64_t l = 1; l < nc; l++)
+                        for (int g = 0; g < G; g++) acc[g] = acc[g] + sc[l * G + g] * Ac[m * nc + l];
+                    for (int g = 0; g < G; g++) scn[m * G + g] = acc[g] + e[g] * Bc[m];
                 }
-                for (int64_t m = 0; m < nc; m++) sc[m] = scn[m];
+                for (int64_t k = 0; k < nc * G; k++) sc[k] = scn[k];
             }
             if (delay) {
-                double out = buf[0];
-                for (int64_t k = 0; k + 1 < delay; k++) buf[k] = buf[k + 1];
-                buf[delay - 1] = x;
-                x = out;
-            }
-            switch (code) {
-            case NL_LINEAR:
-                u = prm[0] * x;
-                break;
-            case NL_DEADBAND:
-                u = prm[2] * (x - np_min(np_max(x, -prm[0]), prm[1]));
-                break;
-            case NL_SATURATION:
-                u = np_min(np_max(x, prm[0]), prm[1]);
-                break;
-            case NL_BACKLASH: {
-                double half = prm[0] / 2;
-                u = np_max(x - half, np_min(x + half, st[1]));
-                st[1] = u;
-                break;
-            }
-            case NL_STICTION: {
-                double S = prm[0], J = prm[1], d = st[3];
-                int stuck = st[4] != 0.0;
-                int sticks = !stuck && (np_sign(x - st[0]) != d);
-                double x_ss = sticks ? st[0] : st[2];
-                stuck = stuck || sticks;
-                double ahead = d * (x - x_ss);
-                int reverse = stuck && (-ahead > S);
-                int go_on = stuck && (ahead > J);
-                if (reverse) d = -d;
-                stuck = stuck && !(reverse || go_on);
-                u = stuck ? st[1] : x - d * ((S - J) / 2);
-                st[0] = x;
-                st[1] = u;
-                st[2] = x_ss;
-                st[3] = d;
-                st[4] = stuck ? 1.0 : 0.0;
-                break;
-            }
-            case NL_STICTION_HE: {
-                double eu = x - st[1];
-                u = fabs(eu) > prm[0] ? x - np_sign(eu) * prm[1] : st[1];
-                st[1] = u;
-                break;
-            }
-            default:
-                free(buf);
-                return -3;
-            }
-            Xi[n] = x;
-            Ui[n] = u;
-            yi[n * p] = yp;
-            for (int64_t j = 1; j < p; j++) {
-                acc = 0.0;
-                if (L) {
-                    acc = s[0] * Ob[j * L];
-                    for (int64_t l = 1; l < L; l++) acc = acc + s[l] * Ob[j * L + l];
+                for (int g = 0; g < G; g++) {
+                    double out = buf[g];
+                    for (int64_t k = 0; k + 1 < delay; k++) buf[k * G + g] = buf[(k + 1) * G + g];
+                    buf[(delay - 1) * G + g] = x[g];
+                    x[g] = out;
                 }
-                yi[n * p + j] = acc + u * Db[j];
+            }
+            for (int g = 0; g < G; g++) u[g] = actuator(code, prm, x[g], st[g]);
+            for (int g = 0; g < g_n; g++) {
+                X[(r0 + g) * K + n] = x[g];
+                U[(r0 + g) * K + n] = u[g];
+                y0[(r0 + g) * K * p + n * p] = yp[g];
+            }
+            for (int64_t j = 1; j < p; j++) {
+                if (L) {
+                    for (int g = 0; g < G; g++) acc[g] = s[g] * Ob[j * L];
+                    for (int64_t l = 1; l < L; l++)
+                        for (int g = 0; g < G; g++) acc[g] = acc[g] + s[l * G + g] * Ob[j * L + l];
+                } else {
+                    for (int g = 0; g < G; g++) acc[g] = 0.0;
+                }
+                for (int g = 0; g < g_n; g++)
+                    y0[(r0 + g) * K * p + n * p + j] = acc[g] + u[g] * Db[j];
             }
             for (int64_t m = 0; m < L; m++) {
-                acc = s[0] * Fp[m * L];
-                for (int64_t l = 1; l < L; l++) acc = acc + s[l] * Fp[m * L + l];
-                sn[m] = acc + u * Gp[m];
+                for (int g = 0; g < G; g++) acc[g] = s[g] * Fp[m * L];
+                for (int64_t l = 1; l < L; l++)
+                    for (int g = 0; g < G; g++) acc[g] = acc[g] + s[l * G + g] * Fp[m * L + l];
+                for (int g = 0; g < G; g++) sn[m * G + g] = acc[g] + u[g] * Gp[m];
             }
-            for (int64_t m = 0; m < L; m++) s[m] = sn[m];
+            for (int64_t k = 0; k < L * G; k++) s[k] = sn[k];
         }
     }
-    free(buf);
+    free(mem);
     return 0;
 }
 
