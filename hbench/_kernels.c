@@ -454,6 +454,17 @@ HB_EXPORT int hb_inner_signal_ls(int64_t R, int64_t M, int64_t p, const double *
     if (!buf) return -2;
     double *DIAG = buf, *OFF = DIAG + G * n, *RHS = OFF + G * n, *X = RHS + G * n;
     double *D = X + G * n, *E = D + G * n, *FREE = E + G * n, *c = FREE + G * n, *dd = c + n;
+    /* periods whose p samples all exist (all but the record's ends): their sums of channel
+     * coefficients are the same in every such period, computed once per run */
+    uint8_t *full = (uint8_t *)malloc((size_t)(M > 0 ? M : 1));
+    if (!full) {
+        free(buf);
+        return -2;
+    }
+    for (int64_t k = 0; k < M; k++) {
+        full[k] = 1;
+        for (int64_t i = 0; i < p; i++) full[k] = full[k] && valid[k * p + i];
+    }
     for (int64_t r0 = 0; r0 < R; r0 += G) {
         int64_t g_n = R - r0 < G ? R - r0 : G;
         int lapack[HB_GROUP];
@@ -463,23 +474,45 @@ HB_EXPORT int hb_inner_signal_ls(int64_t R, int64_t M, int64_t p, const double *
             double *diag = DIAG + g * n, *off = OFF + g * n, *rhs = RHS + g * n;
             double *freed = FREE + g * n;
             double prev22 = 0.0, prev2 = 0.0;
+            /* the sums below for a period with every sample (v[i] = 1), in the same order */
+            double f11 = (g1[0] * g1[0]) * 1.0, f22 = (g0[0] * g0[0]) * 1.0;
+            double f12 = (g0[0] * g1[0]) * 1.0;
+            for (int64_t i = 1; i < p; i++) {
+                f11 = f11 + (g1[i] * g1[i]) * 1.0;
+                f22 = f22 + (g0[i] * g0[i]) * 1.0;
+                f12 = f12 + (g0[i] * g1[i]) * 1.0;
+            }
             for (int64_t k = 0; k < n; k++) {
                 double dg = 0.0, rh = 0.0;
                 if (k < M) {
                     const uint8_t *v = valid + k * p;
                     const double *w = Wr + k * p;
-                    double s11 = (g1[0] * g1[0]) * (double)v[0];
-                    double s22 = (g0[0] * g0[0]) * (double)v[0];
-                    double s12 = (g0[0] * g1[0]) * (double)v[0];
-                    double w0 = v[0] ? w[0] : 0.0;
-                    double t1 = w0 * g1[0], t2 = w0 * g0[0];
-                    for (int64_t i = 1; i < p; i++) {
-                        double wi = v[i] ? w[i] : 0.0;
-                        s11 = s11 + (g1[i] * g1[i]) * (double)v[i];
-                        s22 = s22 + (g0[i] * g0[i]) * (double)v[i];
-                        s12 = s12 + (g0[i] * g1[i]) * (double)v[i];
-                        t1 = t1 + wi * g1[i];
-                        t2 = t2 + wi * g0[i];
+                    double s11, s22, s12, t1, t2;
+                    if (full[k]) {
+                        s11 = f11;
+                        s22 = f22;
+                        s12 = f12;
+                        t1 = w[0] * g1[0];
+                        t2 = w[0] * g0[0];
+                        for (int64_t i = 1; i < p; i++) {
+                            t1 = t1 + w[i] * g1[i];
+                            t2 = t2 + w[i] * g0[i];
+                        }
+                    } else {
+                        s11 = (g1[0] * g1[0]) * (double)v[0];
+                        s22 = (g0[0] * g0[0]) * (double)v[0];
+                        s12 = (g0[0] * g1[0]) * (double)v[0];
+                        double w0 = v[0] ? w[0] : 0.0;
+                        t1 = w0 * g1[0];
+                        t2 = w0 * g0[0];
+                        for (int64_t i = 1; i < p; i++) {
+                            double wi = v[i] ? w[i] : 0.0;
+                            s11 = s11 + (g1[i] * g1[i]) * (double)v[i];
+                            s22 = s22 + (g0[i] * g0[i]) * (double)v[i];
+                            s12 = s12 + (g0[i] * g1[i]) * (double)v[i];
+                            t1 = t1 + wi * g1[i];
+                            t2 = t2 + wi * g0[i];
+                        }
                     }
                     dg = dg + s11;
                     rh = rh + t1;
@@ -546,6 +579,7 @@ HB_EXPORT int hb_inner_signal_ls(int64_t R, int64_t M, int64_t p, const double *
             for (int64_t k = 0; k < n; k++) Ur[k] = freed[k] != 0.0 ? NAN : x[k];
         }
     }
+    free(full);
     free(buf);
     return 0;
 }
