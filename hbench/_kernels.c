@@ -21,6 +21,8 @@
 #define HB_EXPORT __attribute__((visibility("default")))
 /* runs computed side by side where a recursion makes each step wait on the previous one */
 #define HB_GROUP 8
+/* runs stepped together in vectorised loops over lanes (the closed loop, lfilter) */
+#define HB_LANES 4
 HB_EXPORT const char *hb_source_sha256(void) { return HB_SOURCE_SHA256; }
 
 /* actuator codes (hbench.kernels.NONLINEARITY_CODES) */
@@ -46,7 +48,6 @@ static inline double np_sign(double a) { return a > 0 ? 1.0 : (a < 0 ? -1.0 : (a
  * run's numbers, are those of a loop over that run alone. Lanes past the last run compute on
  * zeros and are not written out.
  */
-#define HB_LANES 4
 
 /* the actuator for one run: input x, state st (5), returns u */
 static inline double actuator(int64_t code, const double *prm, double x, double *st)
@@ -221,31 +222,33 @@ HB_EXPORT void hb_filtered_output(int64_t R, int64_t N, int64_t na, const double
 HB_EXPORT int hb_lfilter_rows(int64_t R, int64_t N, int64_t n, const double *num, const double *den,
                     const double *x, int64_t x_stride, double *y)
 {
-    /* HB_GROUP runs side by side: each output waits on the previous one (the recursion), so
-     * independent runs fill the wait; a run's operations are those of a filter on its own */
-    double b[HB_GROUP][64], a[HB_GROUP][64], Z[HB_GROUP][64];
+    /* HB_LANES runs side by side, each operation in a loop over the lanes (lane-minor: b[k * G
+     * + g]) that the compiler vectorises: a run's operations are those of a filter on its own.
+     * Lanes past the last run filter zeros and are not written out. */
+    enum { G = HB_LANES };
+    double b[64 * G], a[64 * G], Z[64 * G], xn[G], yn[G];
     if (n > 64 || n < 2) return -1;
-    for (int64_t r0 = 0; r0 < R; r0 += HB_GROUP) {
-        int64_t G = R - r0 < HB_GROUP ? R - r0 : HB_GROUP;
+    for (int64_t r0 = 0; r0 < R; r0 += G) {
+        const int64_t g_n = R - r0 < G ? R - r0 : G;
         for (int64_t g = 0; g < G; g++) {
             int64_t r = r0 + g;
-            double a0 = den[r * n];
+            double a0 = g < g_n ? den[r * n] : 1.0;
             for (int64_t k = 0; k < n; k++) {
-                b[g][k] = num[r * n + k] / a0;
-                a[g][k] = den[r * n + k] / a0;
+                b[k * G + g] = g < g_n ? num[r * n + k] / a0 : 0.0;
+                a[k * G + g] = g < g_n ? den[r * n + k] / a0 : 0.0;
+                Z[k * G + g] = 0.0;
             }
-            for (int64_t k = 0; k < n - 1; k++) Z[g][k] = 0.0;
         }
         for (int64_t t = 0; t < N; t++) {
-            for (int64_t g = 0; g < G; g++) {
-                double *zg = Z[g], *bg = b[g], *ag = a[g];
-                double xn = x[(r0 + g) * x_stride + t];
-                double yn = zg[0] + bg[0] * xn;
-                for (int64_t k = 0; k < n - 2; k++)
-                    zg[k] = zg[k + 1] + xn * bg[k + 1] - yn * ag[k + 1];
-                zg[n - 2] = xn * bg[n - 1] - yn * ag[n - 1];
-                y[(r0 + g) * N + t] = yn;
-            }
+            for (int g = 0; g < G; g++) xn[g] = g < g_n ? x[(r0 + g) * x_stride + t] : 0.0;
+            for (int g = 0; g < G; g++) yn[g] = Z[g] + b[g] * xn[g];
+            for (int64_t k = 0; k < n - 2; k++)
+                for (int g = 0; g < G; g++)
+                    Z[k * G + g] = Z[(k + 1) * G + g] + xn[g] * b[(k + 1) * G + g] -
+                                   yn[g] * a[(k + 1) * G + g];
+            for (int g = 0; g < G; g++)
+                Z[(n - 2) * G + g] = xn[g] * b[(n - 1) * G + g] - yn[g] * a[(n - 1) * G + g];
+            for (int g = 0; g < g_n; g++) y[(r0 + g) * N + t] = yn[g];
         }
     }
     return 0;
