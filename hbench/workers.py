@@ -80,7 +80,8 @@ INLINE_LIMIT = 1 << 20
 
 def map_chunks(fn: ChunkFn, work: Any, pieces: Sequence[Piece], jobs: int) -> Iterator[Any]:
     """``fn(work, *piece)`` for every piece, in order; with ``jobs > 1`` computed by this process
-    (every ``jobs``-th piece: its memory is warm) and ``jobs - 1`` worker processes.
+    (the first ``len(pieces) // jobs`` pieces, one after another) and ``jobs - 1`` worker
+    processes (the others, dispatched at once).
 
     Parameters
     ----------
@@ -107,8 +108,15 @@ def map_chunks(fn: ChunkFn, work: Any, pieces: Sequence[Piece], jobs: int) -> It
 
 
 def _theirs(count: int, jobs: int) -> list[int]:
-    """The pieces the workers compute: all but every ``jobs``-th (this process's, warm)."""
-    return [i for i in range(count) if i % jobs]
+    """The pieces the workers compute: all but this process's first ``count // jobs``.
+
+    This process takes the first pieces, so it yields each as soon as it is computed and never
+    waits on a worker before its own share is done (with every ``jobs``-th piece, it waited on
+    the worker's piece before it at every step, idle whenever that one was slower); the workers
+    compute theirs back to back meanwhile. Chunk order (the results, and the logs and warnings
+    replayed) is unchanged. Interleaved kept cells of the paper's example, 16 each: median 3928
+    against 3891 runs/s (session 12)."""
+    return list(range(max(count // jobs, 1), count))
 
 
 # --- what every worker does: compute a chunk, bring back its logs and warnings ---------------
