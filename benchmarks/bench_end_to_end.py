@@ -27,9 +27,10 @@ which ~0.13 s are batched 2x2..4x4 pseudo-inverses through ``eigh``), the tidy r
 pandas' string columns) and whole-record numpy passes over ``(runs, K p)`` arrays (``A(q) y``,
 ``Delta w``, the SIMO blocks, eq. 27, the fitness). A fresh worker's first chunk pays ~22 000
 copy-on-write page faults (+0.08 s), so with ``jobs=2`` the parent computes every other chunk
-itself (warm) and one worker the rest: 1.55x one process (1.45x with two workers and an idle
-parent). 3000 runs/s on 2 cores needs ~0.67 ms of CPU per run against ~1.2 ms now: compiled kernels
-fusing those passes, with the numpy path kept as the reference.
+itself (warm; since session 12 the first half) and one worker the rest: 1.55x one process (1.45x
+with two workers and an idle parent). 3000 runs/s on 2 cores needs ~0.67 ms of CPU per run
+against ~1.2 ms now: compiled kernels fusing those passes, with the numpy path kept as the
+reference.
 
 Session 4 (2026-11-23): the first such kernels (:mod:`hbench.kernels`: the closed loop, ``A(q) y``,
 the per-run ``lfilter`` of the direct inverse; the same numbers as the numpy path, tested) and the

@@ -191,10 +191,12 @@ HB_EXPORT int hb_closed_loop(int64_t R, int64_t K, int64_t L, int64_t p, const d
 
 /*
  * w(t) = A(q) y(t) per run (hbench.polyphase.filtered_output): a (R x (na + 1)), y and w
- * (R x N); w(t) = nan for t < na.
+ * (R x N); w(t) = nan for t < na. With dw (not NULL, R x N), also dw = polyphase.delta(w):
+ * dw(0) = nan, dw(t) = w(t) - w(t-1), computed while the run's row is in cache.
  */
 HB_EXPORT void hb_filtered_output(int64_t R, int64_t N, int64_t na, const double *a,
-                                  const double *restrict y, double *restrict w)
+                                  const double *restrict y, double *restrict w,
+                                  double *restrict dw)
 {
     for (int64_t i = 0; i < R; i++) {
         const double *ai = a + i * (na + 1), *restrict yi = y + i * N;
@@ -208,6 +210,11 @@ HB_EXPORT void hb_filtered_output(int64_t R, int64_t N, int64_t na, const double
             const double ak = ai[k];
             const double *restrict yk = yi - k;
             for (int64_t t = na; t < N; t++) wi[t] = wi[t] + ak * yk[t];
+        }
+        if (dw != NULL && N > 0) {
+            double *restrict di = dw + i * N;
+            di[0] = NAN;
+            for (int64_t t = 1; t < N; t++) di[t] = wi[t] - wi[t - 1];
         }
     }
 }

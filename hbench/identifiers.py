@@ -828,8 +828,7 @@ def blind_fit(
         a[idx, :na] = theta
         sigma2[idx] = s2
         den = np.concatenate([np.ones((idx.size, 1)), theta], axis=1)
-        w = pp.filtered_output(y_idx, den)
-        dw = pp.delta(w)
+        w, dw = pp.filtered_output_and_delta(y_idx, den)
         bb = numerator(dw, tau, nb, s2, idx)
         b[idx, :nb] = bb
         bad = check_a4(bb)

@@ -109,7 +109,7 @@ def _library() -> tuple[ctypes.CDLL | None, str]:
         *(_F64,) * 7,
     ]
     lib.hb_filtered_output.restype = None
-    lib.hb_filtered_output.argtypes = [*(_I64,) * 3, _F64, _F64, _F64]
+    lib.hb_filtered_output.argtypes = [*(_I64,) * 3, _F64, _F64, _F64, ctypes.c_void_p]
     lib.hb_period_mean_squares.restype = None
     lib.hb_period_mean_squares.argtypes = [*(_I64,) * 4, ctypes.c_void_p, _I64, _F64]
     lib.hb_filtered_phase_variances.restype = None
@@ -252,14 +252,28 @@ def closed_loop(
 def filtered_output(y: np.ndarray, a: np.ndarray) -> np.ndarray | None:
     """``w = A(q) y`` per run, compiled; ``None`` when the numpy path must run (it also
     serves shapes the kernel does not take, e.g. one coefficient row broadcast to all runs)."""
+    out = _filtered_output(y, a, False)
+    return None if out is None else out[0]
+
+
+def filtered_output_and_delta(y: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(w, delta(w))`` (:func:`hbench.polyphase.delta`) in one compiled pass per run; ``None``
+    when the numpy path must run."""
+    return _filtered_output(y, a, True)
+
+
+def _filtered_output(
+    y: np.ndarray, a: np.ndarray, with_delta: bool
+) -> tuple[np.ndarray, np.ndarray | None] | None:
     lib = _compiled()
     if lib is None or y.ndim != 2 or a.ndim != 2 or a.shape[0] != y.shape[0] or a.shape[1] < 1:
         return None
     y, a = _f64(y), _f64(a)
     R, N = y.shape
     w = np.empty((R, N))
-    lib.hb_filtered_output(R, N, a.shape[1] - 1, a, y, w)
-    return w
+    dw = np.empty((R, N)) if with_delta else None
+    lib.hb_filtered_output(R, N, a.shape[1] - 1, a, y, w, None if dw is None else dw.ctypes.data)
+    return w, dw
 
 
 def period_mean_squares(block: np.ndarray) -> np.ndarray | None:

@@ -68,6 +68,8 @@ def cholesky_inverse(A: np.ndarray, max_cond: float = 1e9) -> tuple[np.ndarray, 
     """
     A = np.asarray(A, dtype=float)
     n = A.shape[-1]
+    if n == 0:  # nothing to invert (numpy's pinv gives the empty matrices too)
+        return np.empty(A.shape), np.ones(A.shape[:-2], bool)
     a = np.moveaxis(A, (-2, -1), (0, 1))  # a[i, j]: that entry of every matrix
     L, M, X = np.empty_like(a), np.empty_like(a), np.empty_like(a)
     with np.errstate(all="ignore"):  # a failed factor gives nan or inf, flagged by ok

@@ -431,6 +431,16 @@ def filtered_output(y: np.ndarray, a: np.ndarray) -> np.ndarray:
     return w
 
 
+def filtered_output_and_delta(y: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(w, delta(w))`` with ``w =`` :func:`filtered_output` ``(y, a)``: compiled in one pass
+    per run when :mod:`hbench.kernels` is built (the same bits as the two calls)."""
+    compiled = kernels.filtered_output_and_delta(y, a)
+    if compiled is not None:
+        return compiled
+    w = filtered_output(y, a)
+    return w, delta(w)
+
+
 def common_periods(dw: np.ndarray, p: int, shift: int, t_min: int, nb: int) -> np.ndarray:
     """Slow indices k whose phases 1 .. nb all have a defined sample (the numerator's rows)."""
     k = phase_times(dw.shape[1], p, 1, shift, t_min)

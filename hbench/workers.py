@@ -1,10 +1,10 @@
 """Processes computing a cell's chunks (issue 7): forked for one cell, or kept for a scope.
 
-:func:`hbench.runner.run_cell` with ``jobs = n > 1`` computes every n-th chunk in this process
-and the others in ``n - 1`` worker processes; every run draws from its own stream and its numbers
-do not depend on the runs batched with it, so the rows are the same whatever the processes. What
-a worker's chunk logs or warns is replayed in this process, in chunk order, through this
-process's loggers and warning filters.
+:func:`hbench.runner.run_cell` with ``jobs = n > 1`` computes the first ``1/n`` of a cell's
+chunks in this process and the others in ``n - 1`` worker processes; every run draws from its own
+stream and its numbers do not depend on the runs batched with it, so the rows are the same
+whatever the processes. What a worker's chunk logs or warns is replayed in this process, in chunk
+order, through this process's loggers and warning filters.
 
 * **Forked for the cell** (the default). The workers are forked when the cell starts and end
   with it: they see exactly the code, objects and settings of that moment, and nothing outlives

@@ -612,6 +612,16 @@ def test_cholesky_inverse_is_the_pseudo_inverse_of_well_conditioned_matrices(n: 
         np.testing.assert_array_equal(cholesky_inverse(A[i])[0], X[i])  # one matrix, no stack
 
 
+def test_empty_matrices_invert_as_numpys_pinv() -> None:
+    """Order 0 (review): the empty inverses, as ``np.linalg.pinv`` gives them."""
+    from hbench.ordered import cholesky_inverse
+
+    A = np.empty((3, 0, 0))
+    X, ok = cholesky_inverse(A)
+    assert X.shape == (3, 0, 0) and ok.all()
+    assert pp._pinv_sym(A).shape == np.linalg.pinv(A, hermitian=True).shape
+
+
 def test_singular_and_bad_matrices_go_to_the_pseudo_inverse() -> None:
     """Singular (an order above the true one on noise-free data), ill-conditioned beyond the
     bound, indefinite and non-finite matrices are not accepted; ``_pinv_sym`` gives numpy's

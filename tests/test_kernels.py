@@ -122,6 +122,15 @@ def test_filtered_output_is_the_numpy_path(na: int) -> None:
         w0 = pp.filtered_output(y[:, 1:], a)
     np.testing.assert_array_equal(w, w0)
     assert np.isnan(w[:, :na]).all() and np.isfinite(w[:, na:]).all()
+    # with its differences in the same pass: the bits of delta(filtered_output(..))
+    w1, dw = pp.filtered_output_and_delta(y[:, 1:], a)
+    assert kernels.filtered_output_and_delta(y[:, 1:], a) is not None
+    np.testing.assert_array_equal(w1, w0)
+    np.testing.assert_array_equal(dw, pp.delta(w0))
+    assert np.isnan(dw[:, : na + 1]).all() and np.isfinite(dw[:, na + 1 :]).all()
+    with kernels.use("numpy"):
+        assert kernels.filtered_output_and_delta(y[:, 1:], a) is None
+        np.testing.assert_array_equal(pp.filtered_output_and_delta(y[:, 1:], a)[1], dw)
 
 
 @needs_build
