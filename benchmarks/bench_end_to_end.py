@@ -142,6 +142,31 @@ and 77 %). Page faults per cell drop from ~37 000 to ~1 200 every time. Interlea
 median cell 1989 against 1673 runs/s (1.19x) and, in a second run, 2612 against 1782 (1.47x);
 best cells 2785 and 2895 against 2049 and 2360. The rows are the same bits as one process's
 (tested, and asserted by the benchmark). The parent's check costs ~2 ms per cell.
+
+Session 12 (2026-11-24): less CPU per run, measured against 954aa06 (three pairs of processes,
+alternating: 0.535-0.550 s of CPU per 1000-run cell before, 0.451-0.457 after: -16 %). In order of
+gain: the quiet-phase regressions' ``Rm^+`` through a Cholesky inverse computed elementwise over
+the stack (:func:`hbench.ordered.cholesky_inverse`; LAPACK's ``eigh`` behind ``np.linalg.pinv``
+spent ~2.5 us per 2x2..5x5 matrix; ~7 %; numbers move at rounding level, no selection changed on
+the paper's cell; numpy's pinv still takes singular or ill-conditioned matrices); eq. (27)'s kernel
+reading ``w`` in place instead of a copied block array (~5 %) and summing the channel coefficients
+of a period with every sample once per run (the kernel 4x faster in isolation, ~5 %); the closed
+loop and ``lfilter`` stepping 4 runs at a time in lane loops the compiler vectorises (~1.37x each
+on its own); ``A(q) y`` and its differences in one pass (~1 %). The parent now computes the first
+half of a ``jobs=2`` cell's chunks, so it never waits on the worker mid-cell (interleaved kept
+cells: median 3928 against 3891 runs/s). All but the first give the same bits as before and as the
+numpy path (a review compared old and new kernels on 9000 edge cases: only nan bit patterns
+differ). The CI run on 3006cb3: one process 2190 runs/s (0.457 ms of CPU per run), ``jobs=2`` with
+a fork per cell 2920, kept workers 3622 (86 % of two independent processes' 4206): the issue's 3000
+runs/s is met with kept workers, as ``hbench sweep`` runs cells; the numpy path 1041 (2.10x),
+unbatched 82x, dense 1864x. What still dominates (pyinstrument, one process, shares of the CPU):
+simulation 29 % (Gaussian draws of the noise and reference streams 13 %, fixed by the seeded
+streams; the closed loop 6 %; seeding the 2000 streams 3 %), the LSM's structure selection 18 %
+(its per-order, per-shift fits 6 %, of which the Cholesky inverses 2 %; the lag Gram matrix by BLAS
+4 %; Table 2's variances 2 %; the selection logic 2 %), the OLS's selection 7 %, the IV's moments
+and numerator 9 % (BLAS products over laid-out instruments), ``A(q) y`` with its differences 7 %
+(four methods), eq. (27) 6 % (three methods), the fitness and rows 8 %, Bai & Fu's inverse 3 %, the
+parent's tidy assembly 2 %.
 """
 
 from __future__ import annotations
