@@ -156,11 +156,12 @@ on its own); ``A(q) y`` and its differences in one pass (~1 %). The parent now c
 half of a ``jobs=2`` cell's chunks, so it never waits on the worker mid-cell (interleaved kept
 cells: median 3928 against 3891 runs/s). All but the first give the same bits as before and as the
 numpy path (a review compared old and new kernels on 9000 edge cases: only nan bit patterns
-differ). The CI run on 3006cb3: one process 2190 runs/s (0.457 ms of CPU per run), ``jobs=2`` with
-a fork per cell 2920, kept workers 3622 (86 % of two independent processes' 4206): the issue's 3000
-runs/s is met with kept workers, as ``hbench sweep`` runs cells; the numpy path 1041 (2.10x),
-unbatched 82x, dense 1864x. What still dominates (pyinstrument, one process, shares of the CPU):
-simulation 29 % (Gaussian draws of the noise and reference streams 13 %, fixed by the seeded
+differ). The CI runs on 3006cb3 and c447766: one process 2190 and 2084 runs/s (0.457 and 0.480 ms
+of CPU per run), ``jobs=2`` with a fork per cell 2920 and 2903, kept workers 3622 and 3521 (86 and
+91 % of two independent processes' 4206 and 3879): the issue's 3000 runs/s is met with kept
+workers, as ``hbench sweep`` runs cells; the numpy path 1041 and 989 (2.10x, 2.11x), unbatched 82x
+and 79x, dense 1864x and 1786x. What still dominates (pyinstrument, one process, shares of the
+CPU): simulation 29 % (Gaussian draws of the noise and reference streams 13 %, fixed by the seeded
 streams; the closed loop 6 %; seeding the 2000 streams 3 %), the LSM's structure selection 18 %
 (its per-order, per-shift fits 6 %, of which the Cholesky inverses 2 %; the lag Gram matrix by BLAS
 4 %; Table 2's variances 2 %; the selection logic 2 %), the OLS's selection 7 %, the IV's moments

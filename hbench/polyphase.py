@@ -645,6 +645,11 @@ class SimoSystem:
         self.source, self.start = source, int(start)
 
     @property
+    def laid_out(self) -> bool:
+        """Whether :attr:`W` exists (given, or formed from ``source`` on first use)."""
+        return self._W is not None
+
+    @property
     def W(self) -> np.ndarray:
         """The blocks ``(runs, M, p)``, zero where the sample does not exist."""
         if self._W is None:
@@ -714,7 +719,7 @@ def inner_signal_ls(sys: SimoSystem, h0: np.ndarray, h1: np.ndarray) -> np.ndarr
     """
     R = h0.shape[0]
     M = sys.valid.shape[0]
-    if sys.source is not None and sys._W is None:  # w read in place, the blocks never formed
+    if sys.source is not None and not sys.laid_out:  # w read in place, no blocks formed
         compiled = kernels.inner_signal_ls(sys.source, sys.valid, h0, h1, start=sys.start)
     else:
         compiled = kernels.inner_signal_ls(sys.W, sys.valid, h0, h1)

@@ -287,9 +287,9 @@ def test_inner_signal_ls_reads_w_in_place_as_the_blocks() -> None:
     sample exists (never past the record's end, nor before ``t_min``), the same numbers as the
     blocks ``W``; entries of ``W`` marked missing are ignored by both paths, whatever they hold."""
     sys, h0, h1 = _eq27_cases(5, 120)
-    assert sys._W is None and not sys.valid.all()  # record ends with missing samples
+    assert not sys.laid_out and not sys.valid.all()  # record ends with missing samples
     in_place = pp.inner_signal_ls(sys, h0, h1)
-    assert sys._W is None  # the blocks were not formed
+    assert not sys.laid_out  # the blocks were not formed
     blocks = kernels.inner_signal_ls(sys.W, sys.valid, h0, h1)
     np.testing.assert_array_equal(in_place, blocks)
     garbage = pp.SimoSystem(W=np.where(sys.valid, sys.W, np.nan), valid=sys.valid, n0=sys.n0)
