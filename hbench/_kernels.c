@@ -442,6 +442,24 @@ static void thomas_sym(int64_t n, const double *diag, const double *off, const d
     for (int64_t i = n - 2; i >= 0; i--) x[i] = d[i] - c[i] * x[i + 1];
 }
 
+/* out = [sum h1_i^2 v_i, sum h0_i^2 v_i, sum h0_i h1_i v_i] over the channels i < p, each from
+ * its first term (polyphase.inner_signal_ls's per-period sums; v is 0/1) */
+static inline void channel_sums(const double *h0, const double *h1, const uint8_t *v, int64_t p,
+                                double *out)
+{
+    double s11 = (h1[0] * h1[0]) * (double)v[0];
+    double s22 = (h0[0] * h0[0]) * (double)v[0];
+    double s12 = (h0[0] * h1[0]) * (double)v[0];
+    for (int64_t i = 1; i < p; i++) {
+        s11 = s11 + (h1[i] * h1[i]) * (double)v[i];
+        s22 = s22 + (h0[i] * h0[i]) * (double)v[i];
+        s12 = s12 + (h0[i] * h1[i]) * (double)v[i];
+    }
+    out[0] = s11;
+    out[1] = s22;
+    out[2] = s12;
+}
+
 /*
  * Eq. (27) through its tridiagonal normal equations (polyphase.inner_signal_ls) for R runs: the
  * blocks of run r are W[r * row_stride + start + k p + i] (period k < M, channel i < p), read
@@ -466,11 +484,13 @@ HB_EXPORT int hb_inner_signal_ls(int64_t R, int64_t M, int64_t p, const double *
     double *D = X + G * n, *E = D + G * n, *FREE = E + G * n, *c = FREE + G * n, *dd = c + n;
     /* periods whose p samples all exist (all but the record's ends): their sums of channel
      * coefficients are the same in every such period, computed once per run */
-    uint8_t *full = (uint8_t *)malloc((size_t)(M > 0 ? M : 1));
+    uint8_t *full = (uint8_t *)malloc((size_t)(M + p));
     if (!full) {
         free(buf);
         return -2;
     }
+    uint8_t *ones = full + M; /* the validity of a period with every sample */
+    for (int64_t i = 0; i < p; i++) ones[i] = 1;
     for (int64_t k = 0; k < M; k++) {
         full[k] = 1;
         for (int64_t i = 0; i < p; i++) full[k] = full[k] && valid[k * p + i];
@@ -484,45 +504,23 @@ HB_EXPORT int hb_inner_signal_ls(int64_t R, int64_t M, int64_t p, const double *
             double *diag = DIAG + g * n, *off = OFF + g * n, *rhs = RHS + g * n;
             double *freed = FREE + g * n;
             double prev22 = 0.0, prev2 = 0.0;
-            /* the sums below for a period with every sample (v[i] = 1), in the same order */
-            double f11 = (g1[0] * g1[0]) * 1.0, f22 = (g0[0] * g0[0]) * 1.0;
-            double f12 = (g0[0] * g1[0]) * 1.0;
-            for (int64_t i = 1; i < p; i++) {
-                f11 = f11 + (g1[i] * g1[i]) * 1.0;
-                f22 = f22 + (g0[i] * g0[i]) * 1.0;
-                f12 = f12 + (g0[i] * g1[i]) * 1.0;
-            }
+            double f[3]; /* the sums of a period with every sample */
+            channel_sums(g0, g1, ones, p, f);
             for (int64_t k = 0; k < n; k++) {
                 double dg = 0.0, rh = 0.0;
                 if (k < M) {
                     const uint8_t *v = valid + k * p;
                     const double *w = Wr + k * p;
-                    double s11, s22, s12, t1, t2;
-                    if (full[k]) {
-                        s11 = f11;
-                        s22 = f22;
-                        s12 = f12;
-                        t1 = w[0] * g1[0];
-                        t2 = w[0] * g0[0];
-                        for (int64_t i = 1; i < p; i++) {
-                            t1 = t1 + w[i] * g1[i];
-                            t2 = t2 + w[i] * g0[i];
-                        }
-                    } else {
-                        s11 = (g1[0] * g1[0]) * (double)v[0];
-                        s22 = (g0[0] * g0[0]) * (double)v[0];
-                        s12 = (g0[0] * g1[0]) * (double)v[0];
-                        double w0 = v[0] ? w[0] : 0.0;
-                        t1 = w0 * g1[0];
-                        t2 = w0 * g0[0];
-                        for (int64_t i = 1; i < p; i++) {
-                            double wi = v[i] ? w[i] : 0.0;
-                            s11 = s11 + (g1[i] * g1[i]) * (double)v[i];
-                            s22 = s22 + (g0[i] * g0[i]) * (double)v[i];
-                            s12 = s12 + (g0[i] * g1[i]) * (double)v[i];
-                            t1 = t1 + wi * g1[i];
-                            t2 = t2 + wi * g0[i];
-                        }
+                    double sv[3];
+                    if (!full[k]) channel_sums(g0, g1, v, p, sv);
+                    const double *sk = full[k] ? f : sv;
+                    const double s11 = sk[0], s22 = sk[1], s12 = sk[2];
+                    double w0 = v[0] ? w[0] : 0.0;
+                    double t1 = w0 * g1[0], t2 = w0 * g0[0];
+                    for (int64_t i = 1; i < p; i++) {
+                        double wi = v[i] ? w[i] : 0.0;
+                        t1 = t1 + wi * g1[i];
+                        t2 = t2 + wi * g0[i];
                     }
                     dg = dg + s11;
                     rh = rh + t1;
