@@ -270,7 +270,7 @@ def test_time_varying_simulation_drops_match_separate_fits(offset: float) -> Non
 def test_a_nan_threshold_never_silences_a_detector() -> None:
     from hbench.diagnose.effects import Drift
 
-    det = Drift()._det(9.0, 0.01, "e", threshold=float("nan"))
+    det = Drift()._det(9.0, 0.001, "e", threshold=float("nan"))
     assert det.threshold == Drift.threshold and det.fired
 
 
@@ -365,10 +365,13 @@ def test_json_follows_the_contract(run_cli: RunCli, nominal_file: Path, tmp_path
         "baseline_fit",
         "extended_fit",
         "gain",
+        "criterion",
     ]
     assert d["record"] == str(nominal_file)
+    assert d["criterion"] == "simulation" or d["criterion"].startswith("prediction-")
     assert isinstance(d["p"], int) and d["p"] >= 2 and d["h"] > 0
-    assert set(d["nonlinearity"]) == {"class", "params", "scores"}
+    assert set(d["nonlinearity"]) == {"class", "params", "scores", "margin", "confident"}
+    assert isinstance(d["nonlinearity"]["confident"], bool)
     assert d["nonlinearity"]["class"] in CLASSES
     assert set(d["nonlinearity"]["scores"]) <= CLASSES
     assert [e["name"] for e in d["effects"]] == list(CONTRACT_EFFECTS)

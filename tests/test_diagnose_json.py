@@ -31,14 +31,14 @@ def test_an_undefined_p_value_is_no_evidence() -> None:
 def test_a_nominal_model_no_better_than_the_mean_is_not_none(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    """No detector fires and the nominal validation fit is <= 0 %: ``unexplained``, not
+    """No extension gains and the nominal validation fit is <= 0 %: ``unexplained``, not
     ``none`` (the contract's ``none`` is "the nominal model already explains the data")."""
     from hbench.diagnose import validate
 
     case = generator.draw_case(5000, "none", "linear")  # a calibration seed: diagnosed none
     d = validate.diagnose(generator.simulate_case(case))
     assert d.cause == "none" and d.baseline_fit > 0
-    assert d.why.startswith("no detector fired, and the nominal model explains")
+    assert d.why.startswith("no extension gains") and "explains the validation part" in d.why
     monkeypatch.setattr(validate, "NONE_MIN_FIT", d.baseline_fit + 1.0)
     again = validate.diagnose(d.ctx.record)
     assert again.cause == "unexplained"

@@ -66,6 +66,22 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help="share of the record used for fitting; the rest validates (default 2/3)",
     )
     p.add_argument(
+        "--criterion",
+        default="auto",
+        metavar="C",
+        help="validation criterion the cause is chosen on: auto (default: K-step prediction "
+        "for p >= 2 with K the nominal model's dominant time constant, simulation for p = 1), "
+        "simulation, prediction, or prediction-K",
+    )
+    p.add_argument(
+        "--rule",
+        default="validation",
+        choices=("validation", "detectors"),
+        help="how the cause is chosen: validation (default: every effect's extension is "
+        "fitted, the one that gains the most validation fit is named) or detectors (only the "
+        "extensions of the detectors that fired)",
+    )
+    p.add_argument(
         "--delay-multiple",
         type=int,
         default=0,

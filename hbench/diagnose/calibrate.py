@@ -23,26 +23,49 @@ from typing import Any, TypeVar
 
 import numpy as np
 
+from hbench.diagnose import benchmark_cases as bc
 from hbench.diagnose import generator as gen
 
 T = TypeVar("T")
 R = TypeVar("R")
 
 
-def run_case(case: gen.Case) -> dict[str, Any]:
-    """Diagnose the record of ``case`` in memory; a row of plain data."""
-    from hbench.diagnose.validate import diagnose
+#: Criteria whose fits :func:`run_case` records beside the diagnosis's own (horizons in fast
+#: samples), so that the cause rule can be compared across criteria on the same records.
+COMPARED_HORIZONS: tuple[int, ...] = (0, 5, 10, 20, 40)
 
-    rec = gen.simulate_case(case)
+
+#: Options of :func:`run_case` set by ``bench``: ``extend_all`` fits every extension, so that
+#: cause rules can be compared offline on the same records; ``method`` is the nominal's blind
+#: method. (Module state read by the worker processes, which fork after it is set.)
+OPTIONS: dict[str, Any] = {"extend_all": False, "method": "wang-lsm", "rule": "validation"}
+
+
+def run_case(case: gen.Case | bc.BenchCase) -> dict[str, Any]:
+    """Diagnose the record of ``case`` (a design case of :mod:`hbench.diagnose.generator` or a
+    benchmark case of :mod:`hbench.diagnose.benchmark_cases`) in memory; a row of plain data."""
+    from hbench.diagnose.validate import Criterion, diagnose
+
+    if isinstance(case, bc.BenchCase):
+        rec, plant = bc.simulate_bench_case(case), case.plant
+    else:
+        rec, plant = gen.simulate_case(case), case.plant["name"]
     row: dict[str, Any] = {
         "seed": case.seed,
         "effect": case.effect,
         "cls": case.cls,
-        "plant": case.plant["name"],
+        "plant": plant,
         "p": case.p,
     }
     try:
-        d = diagnose(rec, source=case.name)
+        d = diagnose(
+            rec,
+            source=case.name,
+            also=tuple(Criterion(k) for k in COMPARED_HORIZONS),
+            extend_all=OPTIONS["extend_all"],
+            method=OPTIONS["method"],
+            rule=OPTIONS["rule"],
+        )
     except Exception as exc:
         row.update(cause="error", found_cls="error", error=f"{type(exc).__name__}: {exc}")
         return row
@@ -52,10 +75,17 @@ def run_case(case: gen.Case) -> dict[str, Any]:
         baseline=d.baseline_fit,
         extended=d.extended_fit,
         gain=d.gain,
+        criterion=getattr(d, "criterion", "simulation"),
+        margin=d.nonlinearity.get("margin"),
+        confident=d.nonlinearity.get("confident"),
         seconds=d.seconds,
         stats={x.name: x.statistic for x in d.detections},
         fired=[x.name for x in d.detections if x.fired],
         ext={k: v.val_fit - d.baseline_fit for k, v in d.extensions.items()},
+        fits={"nominal": d.fits.get("nominal", {}), **{k: v.fits for k, v in d.extensions.items()}},
+        p_values={x.name: x.p_value for x in d.detections},
+        thresholds={x.name: x.threshold for x in d.detections},
+        margin_scores=d.nonlinearity["scores"],
     )
     return row
 
@@ -70,7 +100,7 @@ def parallel_map(fn: Callable[[T], R], items: Sequence[T], jobs: int = 1) -> lis
         return list(pool.map(fn, items, chunksize=1))
 
 
-def run(cases: Sequence[gen.Case], jobs: int = 1) -> list[dict[str, Any]]:
+def run(cases: Sequence[gen.Case | bc.BenchCase], jobs: int = 1) -> list[dict[str, Any]]:
     """Rows for ``cases`` (in order), on ``jobs`` processes."""
     return parallel_map(run_case, cases, jobs)
 
@@ -112,6 +142,17 @@ def report(rows: list[dict[str, Any]]) -> str:
     if hidden:
         pos = sum(r["gain"] > 0 for r in hidden)
         out.append(f"\ngain > 0 on {pos} / {len(hidden)} records with a hidden effect")
+    nominal = [r for r in rows if r["effect"] == "none"]
+    if nominal:
+        named = sum(r["cause"] != "none" for r in nominal)
+        out.append(f"records without an effect given a cause: {named} / {len(nominal)}")
+    sure = [r for r in rows if r.get("confident")]
+    if sure:
+        right = sum(r["found_cls"] == r["cls"] for r in sure)
+        out.append(
+            f"valve class where the diagnosis is confident: {right} / {len(sure)} right "
+            f"({len(rows) - len(sure)} records not confident)"
+        )
     secs = [r["seconds"] for r in rows if r.get("seconds")]
     if secs:
         out.append(f"seconds per record: median {np.median(secs):.2f}, max {np.max(secs):.2f}")
@@ -296,7 +337,7 @@ def run_loop(case: gen.LoopCase) -> dict[str, Any]:
         "disturbance": case.disturbance,
     }
     try:
-        d = diagnose(rec, source=case.name)
+        d = diagnose(rec, source=case.name, also=tuple(Criterion(k) for k in COMPARED_HORIZONS))
         row["found_cls"] = d.nonlinearity["class"]
     except Exception as exc:
         row["found_cls"] = f"error: {type(exc).__name__}: {exc}"
@@ -441,9 +482,67 @@ def main_oracle(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
+def bench_summary(rows: list[dict[str, Any]]) -> str:
+    """The matrices of :func:`report` for all rows, then the per-plant and per-cause rates."""
+    out = [report(rows), "", "per plant: class right, cause right, records"]
+    for plant in bc.BENCH_PLANTS:
+        sub = [r for r in rows if r["plant"] == plant]
+        if sub:
+            c = sum(r["found_cls"] == r["cls"] for r in sub)
+            e = sum(r["cause"] == cause_label(r["effect"]) for r in sub)
+            out.append(f"  {plant:12s} {c:4d} {e:4d} {len(sub):4d}")
+    out.append("per true cause: cause right, gain > 0, records")
+    for eff in gen.EFFECTS:
+        sub = [r for r in rows if r["effect"] == eff]
+        if sub:
+            e = sum(r["cause"] == cause_label(eff) for r in sub)
+            g = sum(r.get("gain", 0) > 0 for r in sub)
+            out.append(f"  {eff:14s} {e:4d} {g:4d} {len(sub):4d}")
+    return "\n".join(out)
+
+
+def main_bench(argv: Sequence[str] | None = None) -> int:
+    """The benchmark's own loops (:mod:`hbench.diagnose.benchmark_cases`): every (plant, class,
+    effect) cell ``--per-cell`` times from seed ``--start`` (calibration seeds 10000-19999,
+    held-out seeds 20000-29999)."""
+    ap = argparse.ArgumentParser(prog="python -m hbench.diagnose.calibrate bench")
+    ap.add_argument("--start", type=int, default=bc.HELD_OUT_SEEDS.start)
+    ap.add_argument("--per-cell", type=int, default=1)
+    ap.add_argument("--plants", default=",".join(bc.BENCH_PLANTS))
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--json", default=None, help="write the rows to this JSON file")
+    ap.add_argument("--extend-all", action="store_true", help="fit every extension")
+    ap.add_argument("--rule", default="validation", choices=("validation", "detectors"))
+    ap.add_argument("--method", default=None, help="blind method of the nominal model")
+    args = ap.parse_args(argv)
+    OPTIONS["extend_all"] = bool(args.extend_all)
+    OPTIONS["rule"] = args.rule
+    if args.method:
+        OPTIONS["method"] = args.method
+    cases = bc.bench_grid(args.start, args.per_cell, tuple(args.plants.split(",")))
+    rows = run(cases, args.jobs)
+    for r in rows:
+        if r["cause"] != cause_label(r["effect"]) or r["found_cls"] != r["cls"]:
+            print(
+                f"{r['seed']:6d} {r['plant']:12s} p={r['p']} {r['effect']:13s} {r['cls']:10s} -> "
+                f"{r['cause']:13s} {r['found_cls']:10s} base {r.get('baseline', 0):6.1f} "
+                f"gain {r.get('gain', 0):6.1f} fired {','.join(r.get('fired', []))} "
+                f"{r.get('error', '')}"
+            )
+    print()
+    print(bench_summary(rows))
+    if args.json:
+        import json
+
+        with open(args.json, "w") as fh:
+            json.dump(rows, fh, default=float)
+    return 0
+
+
 #: The sub-commands beside the default (synthetic records with hidden effects, :func:`main`).
 COMMANDS = {
     "real": main_real,
+    "bench": main_bench,
     "loops": main_loops,
     "patterns": main_patterns,
     "oracle": main_oracle,

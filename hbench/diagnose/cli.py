@@ -12,19 +12,12 @@ from hbench.errors import InputError
 
 
 def _summary(d) -> str:
-    nl = d.nonlinearity
-    params = ", ".join(
-        f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}" for k, v in nl["params"].items()
-    )
     fired = [x.name for x in d.detections if x.fired]
     lines = [
+        *d.findings(),
         f"record: {d.source} (p = {d.ctx.p}, h = {d.ctx.h:g} s, {d.ctx.K} slow samples; fit on "
         f"the first {d.ctx.k_fit}, validate on the last {d.ctx.K - d.ctx.k_fit})",
-        f"nonlinearity: {nl['class']}" + (f" ({params})" if params else ""),
         "effects detected: " + (", ".join(fired) if fired else "none"),
-        f"cause: {d.cause}",
-        f"validation fit: nominal {d.baseline_fit:.1f} %, extended {d.extended_fit:.1f} %, "
-        f"gain {d.gain:+.1f} points",
     ]
     return "\n".join(lines)
 
@@ -53,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
     ----------
     args : argparse.Namespace
         The parsed command line (``record, p, json, out, method, fit_fraction,
-        delay_multiple``).
+        delay_multiple, criterion, rule``).
 
     Returns
     -------
@@ -66,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
         A bad record, option or output path.
     """
     from hbench.cli import check_output
-    from hbench.diagnose.validate import diagnose
+    from hbench.diagnose.validate import diagnose, parse_criterion
     from hbench.plugins import registry
     from hbench.readers import read_record
 
@@ -80,6 +73,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--delay-multiple must be >= 0, got {args.delay_multiple}")
     if not 0.2 <= args.fit_fraction <= 0.9:
         raise InputError(f"--fit-fraction must lie in [0.2, 0.9], got {args.fit_fraction:g}")
+    parse_criterion(getattr(args, "criterion", "auto"))  # a bad --criterion: before the work
     reg = registry()
     readers = [reg.get("readers", n) for n in reg.names("readers")] or None
     record = read_record(args.record, p=args.p, readers=readers)
@@ -95,6 +89,8 @@ def run(args: argparse.Namespace) -> int:
                 method=args.method,
                 fit_fraction=args.fit_fraction,
                 delay_multiple=args.delay_multiple,
+                criterion=getattr(args, "criterion", "auto"),
+                rule=getattr(args, "rule", "validation"),
             )
     except InputError:
         # a refused record: its one error line alone (a notice such as "'y' is constant" would

@@ -81,8 +81,17 @@ def _fmt_p(p: float) -> str:
     return f"{p:.2g}" if p >= 1e-300 else "< 1e-300"
 
 
+#: A detector fires when its effect size exceeds its threshold AND its test rejects at this
+#: level: the verdict never contradicts the p-value printed beside it.
+ALPHA = 0.01
+
+
 class Effect:
-    """Base class of the catalogued effects."""
+    """Base class of the catalogued effects.
+
+    The verdict rule (:meth:`_det`): a detector fires when its statistic, an effect size,
+    exceeds its threshold and its p-value is below :data:`ALPHA`; the evidence line says which
+    condition kept a quiet detector quiet."""
 
     name: ClassVar[str] = ""
     summary: ClassVar[str] = ""
@@ -110,8 +119,20 @@ class Effect:
         t = float(self.threshold)
         if threshold is not None and np.isfinite(threshold):
             t = max(t, float(threshold))
-        fired = bool(np.isfinite(statistic) and statistic > t)
-        verdict = "fires" if fired else "quiet"
+        large = bool(np.isfinite(statistic) and statistic > t)
+        significant = bool(np.isfinite(p_value) and p_value < ALPHA)
+        fired = large and significant
+        if fired:
+            verdict = f"fires: effect size above it and p < {ALPHA:g}"
+        elif large:
+            verdict = f"quiet: effect size above it but p = {_fmt_p(p_value)} is not below {ALPHA:g}"
+        elif significant:
+            verdict = (
+                f"quiet: p < {ALPHA:g} but the effect size is below the threshold (an effect "
+                "too small to matter here)"
+            )
+        else:
+            verdict = "quiet"
         return Detection(
             self.name,
             float(statistic),
@@ -208,6 +229,10 @@ class ColoredNoise(Effect):
             m = nm.hammerstein_pem(
                 ctx, m, idx, prefilter=d, label="colored-noise", which=(nom.chosen,)
             )[0]
+        # the extension's own noise model, e / D with D the AR model of its residual (the
+        # K-step predictor of the validation criterion uses it)
+        r = (ctx.y - m.simulate(ctx.x))[idx][SETTLE:]
+        m.info["noise_filter"] = _ar(r - r.mean(), 8)
         return m
 
 
@@ -339,8 +364,15 @@ class Delay(Effect):
     def extend(self, ctx: nm.Context, nom: nm.Nominal, det: Detection) -> core.Model:
         if ctx.p >= 2 and nom.estimate is not None:
             k = int(det.info["shift"])
-            model, _, _, _ = nm.model_from_blind(ctx, nom.estimate, shift=k, label="delay")
-            return nm.arx_refine(model, ctx)
+            kw = _nominal_kw(ctx, nom)
+            return nm.blind_model(
+                ctx,
+                nom.estimate,
+                shift=k,
+                delay_multiple=kw["delay_multiple"],
+                label="delay",
+                candidates=kw["candidates"],
+            )[0]
         m = nm.refit_linear(nom.model, ctx, ctx.fit_idx, delay=int(det.info["delay"]))
         return core.fit_output(m, ctx.x, ctx.y, ctx.fit_idx)
 
@@ -405,9 +437,12 @@ class Outliers(Effect):
 
 
 def _nominal_kw(ctx: nm.Context, nom: nm.Nominal) -> dict[str, Any]:
+    """How an extension runs the nominal route again: the same method and delay multiple,
+    and the nominal's class among the candidates (:func:`hbench.diagnose.nominal.blind_model`)."""
     return {
         "method": nom.info.get("method", "wang-lsm"),
         "delay_multiple": int(nom.model.info.get("delay_multiple", 0)),
+        "candidates": (nom.chosen,),
     }
 
 
@@ -616,8 +651,13 @@ class Order(Effect):
                 except Exception:
                     est = None
                 if est is not None:
-                    m, _, _, _ = nm.model_from_blind(ctx, est, label="order")
-                    cand_m = nm.arx_refine(m, ctx)
+                    cand_m = nm.blind_model(
+                        ctx,
+                        est,
+                        delay_multiple=_nominal_kw(ctx, nom)["delay_multiple"],
+                        label="order",
+                        candidates=(nom.chosen,),
+                    )[0]
                 else:
                     cand_m = core.fit_output(
                         nm.refit_linear(

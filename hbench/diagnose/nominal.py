@@ -364,10 +364,119 @@ def model_from_blind(
     return model, fits, chosen, U
 
 
-def nominal_blind(ctx: Context, method: str = "wang-lsm", delay_multiple: int = 0) -> Nominal:
+def equation_error_classes(
+    model: core.Model,
+    ctx: Context,
+    graph: dict[str, classes.ClassFit],
+    idx: np.ndarray | None = None,
+    which: tuple[str, ...] = core.CLASSES,
+) -> dict[str, classes.ClassFit]:
+    """Every class fitted by equation error through the blind model's orders and delay
+    (:func:`hbench.diagnose.classes.fit_equation_error`, started at the graph fit's
+    parameters), scored as on the graph: ``score = (BIC_linear - BIC) / 2``.
+
+    Equation error is the likelihood of the nominal noise model (``e / A``, the paper's eq. 2),
+    computed from ``x`` and ``y``; the graph of the blind inner signal carries the noise of
+    the blind estimate as well, which hides a small slip jump or dead zone. ``info["eq"]``
+    holds the fitted ``[a, b, m]``; ``info["graph_score"]`` the graph's score.
+    """
+    idx = ctx.fit_idx if idx is None else idx
+    na, nb, delay = model.lin.na, max(model.lin.nb, 2), model.lin.delay
+    xs = shifted(ctx.x, model.shift)
+    x_fit = ctx.x[: ctx.k_fit]
+    out: dict[str, classes.ClassFit] = {}
+    for cls in (c for c in core.CLASSES if c in which or c == "linear"):
+        g = graph.get(cls)
+        theta0 = (g.theta or None) if g is not None else None
+        if cls == "stiction" and "backlash" in out and out["backlash"].theta:
+            # stiction holds backlash as J = 0: start there too when it fits better
+            b = out["backlash"].theta
+            seed = {"S": b["width"], "J": 0.0, "d0": 1.0, "g0": b["g0"]}
+            t1, r1, _ = classes.fit_equation_error(
+                cls, xs, ctx.y, ctx.p, idx, na, nb, delay, theta0=seed
+            )
+        else:
+            r1 = np.inf
+        theta, rss, th = classes.fit_equation_error(
+            cls, xs, ctx.y, ctx.p, idx, na, nb, delay, theta0=theta0
+        )
+        if r1 < rss:
+            theta, rss, th = classes.fit_equation_error(
+                cls, xs, ctx.y, ctx.p, idx, na, nb, delay, theta0=t1
+            )
+        n = int(np.sum(idx >= max(na, delay + nb)))
+        out[cls] = classes.ClassFit(
+            cls,
+            theta,
+            rss,
+            n,
+            na + nb + 1 + core.N_SHAPE[cls],
+            info={
+                "strength": classes.strength(cls, theta, x_fit) if theta or cls == "linear" else 0.0,
+                "eq": th,
+                "graph_score": float(g.score) if g is not None else float("nan"),
+            },
+        )
+    base = out["linear"].bic
+    for f in out.values():
+        f.score = float((base - f.bic) / 2)
+    return out
+
+
+def blind_model(
+    ctx: Context,
+    est: Estimate,
+    *,
+    shift: int = 0,
+    delay_multiple: int = 0,
+    label: str = "nominal",
+    candidates: tuple[str, ...] | None = None,
+) -> tuple[core.Model, dict[str, classes.ClassFit], str, np.ndarray]:
+    """The blind route's model: the (x, U) graph of ``est`` gives every class a starting
+    point (:func:`model_from_blind`), equation error through the dynamics chooses the class
+    and fits its parameters with the linear part (:func:`equation_error_classes`,
+    :func:`choose_graph`), and the output scale, offset and start-up transient are fitted on
+    the fit part. ``candidates`` limits the equation-error fits to those classes, ``linear``
+    and the graph's best class (the extensions pass the nominal's class: the equation-error
+    fits are most of a diagnosis's time). Returns ``(model, class fits, chosen, U)``."""
+    model, graph, _, U = model_from_blind(
+        ctx, est, shift=shift, delay_multiple=delay_multiple, label=label
+    )
+    which = core.CLASSES
+    if candidates is not None:
+        top = max((c for c in graph if c != "linear"), key=lambda c: graph[c].score)
+        which = tuple(dict.fromkeys(("linear", *candidates, top)))
+    fits = equation_error_classes(model, ctx, graph, which=which)
+    chosen = choose_graph(fits)
+    f = fits[chosen]
+    na, nb = model.lin.na, max(model.lin.nb, 2)
+    th = f.info["eq"]
+    lin = core.Linear(
+        a=core.stabilise(np.concatenate([[1.0], th[:na]])),
+        b=np.asarray(th[na : na + nb]),
+        delay=model.lin.delay,
+    )
+    model = model.with_(
+        cls=chosen,
+        theta=f.theta,
+        lin=lin,
+        gain=1.0,
+        offset=0.0,
+        info={**model.info, "refit": "equation-error", "class_fits": fits, "graph_fits": graph},
+    )
+    return core.fit_output(model, ctx.x, ctx.y, ctx.fit_idx), fits, chosen, U
+
+
+def nominal_blind(
+    ctx: Context,
+    method: str = "wang-lsm",
+    delay_multiple: int = 0,
+    candidates: tuple[str, ...] | None = None,
+) -> Nominal:
     est = identify_blind(ctx, method, delay_multiple=delay_multiple)
-    model, fits, chosen, U = model_from_blind(ctx, est, delay_multiple=delay_multiple)
-    model = arx_refine(model, ctx)
+    model, fits, chosen, U = blind_model(
+        ctx, est, delay_multiple=delay_multiple, candidates=candidates
+    )
     model, yhat, resid, innov = finish(model, ctx, refit_output=False)
     structure = {
         "na": int(est.na[0]),
@@ -582,10 +691,16 @@ def oscillation_verdict(
     return new
 
 
-def fit_nominal(ctx: Context, method: str = "wang-lsm", delay_multiple: int = 0) -> Nominal:
-    """The nominal model: blind for ``p >= 2``, output error for ``p = 1``."""
+def fit_nominal(
+    ctx: Context,
+    method: str = "wang-lsm",
+    delay_multiple: int = 0,
+    candidates: tuple[str, ...] | None = None,
+) -> Nominal:
+    """The nominal model: blind for ``p >= 2`` (``candidates``: see :func:`blind_model`),
+    output error for ``p = 1``."""
     if ctx.p >= 2:
-        return nominal_blind(ctx, method, delay_multiple)
+        return nominal_blind(ctx, method, delay_multiple, candidates)
     return nominal_dynamic(ctx)
 
 

@@ -18,22 +18,42 @@ FIGURES: tuple[tuple[str, str], ...] = (
     ("residual_time", "Nominal residual y - y_hat over time"),
     ("residual_spectrum", "Periodogram of the nominal residual (fit part)"),
     ("residual_acf", "Autocorrelation of the nominal model's innovations (fit part)"),
+    (
+        "residual_xcorr",
+        "Cross-correlation of the nominal model's innovations with x (fit part, slow samples)",
+    ),
     ("residual_vs_x", "Nominal residual against x"),
     ("actuator", "The actuator: x against the inner signal and the fitted nonlinearity"),
 )
 
 
-def _fig_png(fig: Any) -> bytes:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
+#: The formats every figure is written in (PNG for the pages, PDF for print).
+FORMATS: tuple[str, ...] = ("png", "pdf")
+
+
+def _render(fig: Any) -> dict[str, bytes]:
+    """``fig`` rendered in every format of :data:`FORMATS` (PDF fonts embedded as TrueType),
+    then closed."""
+    import matplotlib
     import matplotlib.pyplot as plt
 
+    out = {}
+    with matplotlib.rc_context({"pdf.fonttype": 42}):
+        for fmt in FORMATS:
+            buf = io.BytesIO()
+            fig.savefig(buf, format=fmt, dpi=150, bbox_inches="tight")
+            out[fmt] = buf.getvalue()
     plt.close(fig)
-    return buf.getvalue()
+    return out
 
 
 def figures(d: Any) -> dict[str, bytes]:
     """The report's figures as PNG bytes, by name."""
+    return {k: v["png"] for k, v in render_figures(d).items()}
+
+
+def render_figures(d: Any) -> dict[str, dict[str, bytes]]:
+    """The report's figures by name, each in every format of :data:`FORMATS`."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)
@@ -42,7 +62,8 @@ def figures(d: Any) -> dict[str, bytes]:
     ctx, nom = d.ctx, d.nominal
     t = np.arange(ctx.N) * ctx.h
     t_split = ctx.n_fit * ctx.h
-    out: dict[str, bytes] = {}
+    out: dict[str, dict[str, bytes]] = {}
+    lag_unit = "fast samples" if ctx.p >= 2 else "samples"
 
     fig, ax = plt.subplots(figsize=(9, 3.2))
     ax.plot(t, ctx.y, color="0.55", lw=0.6, label="measured y")
@@ -61,19 +82,38 @@ def figures(d: Any) -> dict[str, bytes]:
             lw=0.9,
             label=f"extended ({d.cause}), validation fit {d.extended_fit:.1f} %",
         )
+    if d.criterion != "simulation":
+        from hbench.diagnose import validate
+
+        crit = validate.parse_criterion(d.criterion)
+        pred = validate.predict(
+            ctx.y, nom.yhat, validate.noise_filter(nom.model, nom.model), crit.horizon
+        )
+        v = ctx.val_idx
+        ax.plot(
+            t[v],
+            pred[v],
+            color="C2",
+            lw=0.7,
+            label=f"nominal, {d.criterion} ({d.fits['nominal'][d.criterion]:.1f} %)",
+        )
     ax.axvline(t_split, color="k", ls="--", lw=0.8)
     ax.set_xlabel("t [s]")
     ax.set_ylabel("y")
     ax.legend(loc="best", fontsize=7)
-    ax.set_title("fit part | validation part", fontsize=8)
-    out["simulation"] = _fig_png(fig)
+    ax.set_title(
+        f"fit part | validation part (fits in the legend: simulation; the criterion is "
+        f"{d.criterion})",
+        fontsize=8,
+    )
+    out["simulation"] = _render(fig)
 
     fig, ax = plt.subplots(figsize=(9, 2.6))
     ax.plot(t, nom.resid, color="C0", lw=0.6)
     ax.axvline(t_split, color="k", ls="--", lw=0.8)
     ax.set_xlabel("t [s]")
     ax.set_ylabel("y - y_hat")
-    out["residual_time"] = _fig_png(fig)
+    out["residual_time"] = _render(fig)
 
     e = nom.resid[ctx.fit_idx]
     P = stats.periodogram(e)
@@ -82,7 +122,7 @@ def figures(d: Any) -> dict[str, bytes]:
     ax.loglog(f[1:], np.maximum(P[1:], 1e-300), color="C0", lw=0.6)
     ax.set_xlabel("frequency [Hz]")
     ax.set_ylabel("periodogram")
-    out["residual_spectrum"] = _fig_png(fig)
+    out["residual_spectrum"] = _render(fig)
 
     ei = nom.innov[ctx.fit_idx][20:]
     nl = 40
@@ -92,9 +132,25 @@ def figures(d: Any) -> dict[str, bytes]:
     band = 1.96 / np.sqrt(max(ei.size, 1))
     ax.axhline(band, color="k", ls=":", lw=0.8)
     ax.axhline(-band, color="k", ls=":", lw=0.8)
-    ax.set_xlabel("lag [fast samples]")
+    ax.set_xlabel(f"lag [{lag_unit}]")
     ax.set_ylabel("autocorrelation")
-    out["residual_acf"] = _fig_png(fig)
+    ax.set_title("dotted: 95 % band of white innovations", fontsize=8)
+    out["residual_acf"] = _render(fig)
+
+    # innovations against x: at the period starts, lags in slow samples (x leads for k > 0)
+    es = nom.innov[:: ctx.p][: ctx.k_fit][2:]
+    xs = ctx.x[: ctx.k_fit][2:]
+    rx = stats.cross_correlation(xs, es, min(30, es.size // 4))
+    lags = np.arange(rx.size) - rx.size // 2
+    fig, ax = plt.subplots(figsize=(6, 3))
+    ax.bar(lags, rx, color="C0", width=0.7)
+    band = 1.96 / np.sqrt(max(es.size, 1))
+    ax.axhline(band, color="k", ls=":", lw=0.8)
+    ax.axhline(-band, color="k", ls=":", lw=0.8)
+    ax.set_xlabel("lag k [slow samples]: correlation of the innovation at n with x at n - k")
+    ax.set_ylabel("cross-correlation")
+    ax.set_title("dotted: 95 % band when innovations and x are independent", fontsize=8)
+    out["residual_xcorr"] = _render(fig)
 
     fig, ax = plt.subplots(figsize=(5, 3.6))
     slow_resid = nom.resid[:: ctx.p]
@@ -104,13 +160,13 @@ def figures(d: Any) -> dict[str, bytes]:
     ax.set_xlabel("x")
     ax.set_ylabel("y - y_hat (at the period starts)")
     ax.legend(fontsize=7)
-    out["residual_vs_x"] = _fig_png(fig)
+    out["residual_vs_x"] = _render(fig)
 
     out["actuator"] = _actuator_figure(d, plt)
     return out
 
 
-def _actuator_figure(d: Any, plt: Any) -> bytes:
+def _actuator_figure(d: Any, plt: Any) -> dict[str, bytes]:
     ctx, nom = d.ctx, d.nominal
     m = d.extended if ctx.p >= 2 else nom.model
     if ctx.p >= 2 and nom.U is not None:
@@ -131,7 +187,7 @@ def _actuator_figure(d: Any, plt: Any) -> bytes:
         ax.set_xlabel("x" + (f"(n - {m.shift})" if m.shift else "(n)"))
         ax.set_ylabel("U(n)")
         ax.legend(fontsize=7)
-        return _fig_png(fig)
+        return _render(fig)
     fig, axes = plt.subplots(1, 2, figsize=(9, 3.6))
     ax = axes[0]
     ax.plot(ctx.x, ctx.y, ".", ms=2, color="0.5")
@@ -144,7 +200,7 @@ def _actuator_figure(d: Any, plt: Any) -> bytes:
     ax.set_xlabel("x (controller output)")
     ax.set_ylabel("fitted valve position u")
     ax.set_title(f"fitted valve characteristic: {m.cls}", fontsize=8)
-    return _fig_png(fig)
+    return _render(fig)
 
 
 def _rows(d: Any) -> list[dict[str, str]]:
@@ -154,15 +210,17 @@ def _rows(d: Any) -> list[dict[str, str]]:
         rows.append(
             {
                 "effect": det.name,
-                "statistic": f"{det.statistic:.4g}",
-                "threshold": f"{det.threshold:.4g}",
-                "p-value": f"{det.p_value:.2g}",
+                "statistic": _value(det.statistic, ".4g", "the statistic could not be computed"),
+                "threshold": _value(det.threshold, ".4g", "no threshold"),
+                "p-value": _value(det.p_value, ".2g", "no test gives one"),
                 "verdict": "fires" if det.fired else "quiet",
-                "extended fit": (
+                f"extended fit ({d.criterion})": (
                     ""
                     if ext is None
                     else (
-                        f"{ext.val_fit:.1f} %" if ext.model is not None else f"failed: {ext.error}"
+                        _value(ext.val_fit, ".1f", "the extended model does not simulate") + " %"
+                        if ext.model is not None
+                        else f"failed: {ext.error}"
                     )
                 ),
                 "cause": "yes" if det.name == d.cause else "",
@@ -170,6 +228,15 @@ def _rows(d: Any) -> list[dict[str, str]]:
             }
         )
     return rows
+
+
+def _value(v: float, fmt: str, why: str) -> str:
+    """``v`` formatted, or ``n/a: why`` where it is not a finite number."""
+    try:
+        v = float(v)
+    except (TypeError, ValueError):
+        return f"n/a: {why}"
+    return format(v, fmt) if np.isfinite(v) else f"n/a: {why}"
 
 
 def _summary_rows(d: Any) -> list[tuple[str, str]]:
@@ -190,7 +257,11 @@ def _summary_rows(d: Any) -> list[tuple[str, str]]:
         else "output-error model from x to y; classes fitted through the dynamics; class decided "
         "on the whole record, parameters fitted on the fit part"
     )
+    valve, cause, fits = d.findings()
     return [
+        ("valve", valve.removeprefix("valve: ")),
+        ("cause", cause.removeprefix("cause: ")),
+        ("validation", fits.removeprefix("validation fits: ")),
         ("record", str(d.source)),
         ("p, h", f"{d.ctx.p}, {d.ctx.h:g} s"),
         (
@@ -210,12 +281,7 @@ def _summary_rows(d: Any) -> list[tuple[str, str]]:
             ),
         ),
         *_shape_rows(d),
-        ("cause", f"{d.cause}: {d.why}"),
-        (
-            "validation fit",
-            f"nominal {d.baseline_fit:.1f} %, extended {d.extended_fit:.1f} %, "
-            f"gain {d.gain:+.1f} points",
-        ),
+        ("why this cause", d.why),
     ]
 
 
@@ -303,12 +369,13 @@ def write_report(d: Any, out_dir: Path) -> tuple[Path, Path]:
     ``out_dir``; returns both paths."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    figs = figures(d)
+    rendered = render_figures(d)
+    figs = {k: v["png"] for k, v in rendered.items()}
     files = {}
-    for name, png in figs.items():
-        fn = f"fig_{name}.png"
-        (out_dir / fn).write_bytes(png)
-        files[name] = fn
+    for name, by_fmt in rendered.items():
+        for fmt, data in by_fmt.items():
+            (out_dir / f"fig_{name}.{fmt}").write_bytes(data)
+        files[name] = f"fig_{name}.png"
     html_path = out_dir / "report.html"
     md_path = out_dir / "report.md"
     html_path.write_text(render_html(d, figs), encoding="utf-8")

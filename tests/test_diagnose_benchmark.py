@@ -1,0 +1,143 @@
+"""``hbench diagnose`` on the benchmark's own loops (:mod:`hbench.diagnose.benchmark_cases`):
+the paper's Section 6 loop and the built-in first-order, third-order and NMP plants under P and
+PI control, every valve class with every hidden cause.
+
+Seeds: thresholds and levels were chosen on :data:`~hbench.diagnose.benchmark_cases.
+CALIBRATION_SEEDS` (10000-19999); the ``slow`` matrices below are measured on
+:data:`~hbench.diagnose.benchmark_cases.HELD_OUT_SEEDS` (20000-29999), never used to choose
+anything: the paper loop from seed 20000 (5 classes x 7 causes x 3 seeds), the other plants from
+seed 21000 (5 x 7 x 1 each). The issue's targets (class and cause right on 90 % of records, at
+most 10 % of records without an effect given a cause, a positive gain on 90 % of records with one)
+are not all met yet: each is its own test, ``xfail(strict=True)`` while it is not, so meeting it
+turns the suite red until the mark is removed. Printing the matrices:
+``pytest tests/test_diagnose_benchmark.py -m slow -s`` (or ``python -m
+hbench.diagnose.calibrate bench --start 20000 --per-cell 3 --plants paper``).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from hbench.diagnose import benchmark_cases as bc
+from hbench.diagnose import calibrate
+
+RunCli = Callable[[list[str]], tuple[int, str, str]]
+
+PAPER_START, OTHERS_START = 20_000, 21_000
+
+
+def _rate(rows: list[dict[str, Any]], ok: Callable[[dict[str, Any]], bool]) -> float:
+    return sum(bool(ok(r)) for r in rows) / max(len(rows), 1)
+
+
+def _class_right(r: dict[str, Any]) -> bool:
+    return r["found_cls"] == r["cls"]
+
+
+def _cause_right(r: dict[str, Any]) -> bool:
+    return r["cause"] == calibrate.cause_label(r["effect"])
+
+
+@pytest.fixture(scope="module")
+def held_out_rows(request: pytest.FixtureRequest) -> dict[str, list[dict[str, Any]]]:
+    paper = calibrate.run(bc.bench_grid(PAPER_START, 3, ("paper",)), jobs=2)
+    others = calibrate.run(
+        bc.bench_grid(OTHERS_START, 1, ("first-order", "third-order", "nmp")), jobs=2
+    )
+    capman = request.config.pluginmanager.getplugin("capturemanager")
+    with capman.global_and_fixture_disabled():
+        print(f"\nhbench diagnose on the paper loop (held-out seeds from {PAPER_START}):")
+        print(calibrate.bench_summary(paper))
+        print(f"\non the other benchmark plants (held-out seeds from {OTHERS_START}):")
+        print(calibrate.bench_summary(others))
+    return {"paper": paper, "others": others}
+
+
+@pytest.mark.slow
+def test_no_record_fails(held_out_rows: dict[str, list[dict[str, Any]]]) -> None:
+    errors = [r for rows in held_out_rows.values() for r in rows if r["cause"] == "error"]
+    assert not errors, [(r["seed"], r["error"]) for r in errors]
+
+
+_TARGETS = {
+    "class": (_class_right, None, 0.9),
+    "cause": (_cause_right, None, 0.9),
+    "gain": (lambda r: r.get("gain", 0) > 0, lambda r: r["effect"] != "none", 0.9),
+    "none-kept": (lambda r: r["cause"] == "none", lambda r: r["effect"] == "none", 0.9),
+}
+
+
+def _target(rows: list[dict[str, Any]], which: str) -> float:
+    ok, keep, _ = _TARGETS[which]
+    return _rate([r for r in rows if keep is None or keep(r)], ok)
+
+
+#: (group, target) pairs not met on the held-out seeds: strict xfails, with the measured rate.
+NOT_MET = {
+    ("paper", "class"): "valve class right on 56/105 paper-loop records",
+    ("paper", "cause"): "cause right on 62/105 paper-loop records",
+    ("paper", "gain"): "positive gain on 56/90 paper-loop records with an effect",
+    ("others", "class"): "valve class right on 45/105 records of the other plants",
+    ("others", "cause"): "cause right on 56/105 records of the other plants",
+    ("others", "gain"): "positive gain on 58/90 records of the other plants with an effect",
+    ("others", "none-kept"): "cause none on 9/15 records of the other plants without an effect",
+}
+
+
+def _cases() -> list[Any]:
+    out = []
+    for group in ("paper", "others"):
+        for which in _TARGETS:
+            why = NOT_MET.get((group, which))
+            marks = [pytest.mark.slow]
+            if why:
+                marks.append(pytest.mark.xfail(strict=True, reason=f"target 90 % not met: {why}"))
+            out.append(pytest.param(group, which, marks=marks, id=f"{group}-{which}"))
+    return out
+
+
+@pytest.mark.parametrize(("group", "which"), _cases())
+def test_target(held_out_rows: dict[str, list[dict[str, Any]]], group: str, which: str) -> None:
+    assert _target(held_out_rows[group], which) >= _TARGETS[which][2]
+
+
+@pytest.mark.slow
+def test_paper_example_without_effect_is_none(run_cli: RunCli, tmp_path: Path) -> None:
+    """``hbench simulate`` defaults (the paper's example, backlash d = 0.1, sigma^2 = 1e-3),
+    30 fresh seeds (3000-3029, used nowhere else): the cause is ``none`` on at least 27."""
+    causes = []
+    for seed in range(3000, 3030):
+        rec = tmp_path / f"s{seed}.csv"
+        status, _, err = run_cli(["simulate", "--out", str(rec), "--seed", str(seed)])
+        assert status == 0, err
+        out = tmp_path / f"s{seed}.json"
+        status, _, err = run_cli(["diagnose", str(rec), "--json", str(out)])
+        assert status == 0, err
+        causes.append(json.loads(out.read_text())["cause"])
+    print(f"\npaper example, seeds 3000-3029: causes {sorted(causes)}")
+    assert causes.count("none") >= 27, causes
+
+
+#: The default run's regression check: the first seven calibration seeds of the paper loop
+#: with a backlash (one per cause, seeds 10000-10006), as measured.
+REGRESSION_START = 10_000
+
+
+def test_regression_on_the_paper_loop() -> None:
+    cases = [
+        bc.draw_bench_case(REGRESSION_START + i, e, "backlash", "paper")
+        for i, e in enumerate(bc.EFFECTS)
+    ]
+    rows = calibrate.run(cases, jobs=1)
+    assert not [r for r in rows if r["cause"] == "error"]
+    right = sum(_cause_right(r) for r in rows)
+    assert right >= REGRESSION_CAUSES, [(r["effect"], r["cause"]) for r in rows]
+
+
+#: Causes right on the regression records, as measured (a drop fails the default suite).
+REGRESSION_CAUSES = 4
