@@ -345,7 +345,10 @@ def detector_table(rows: Sequence[dict[str, Any]], splits: Sequence[str]) -> str
 
 
 def main_real(argv: Sequence[str] | None = None) -> int:
-    """``python -m hbench.diagnose.calibrate real FOLDER [--split S] [--jobs J]``."""
+    """``python -m hbench.diagnose.calibrate real FOLDER [--split S] [--jobs J]``: hbench's
+    stiction verdict on every record, its accuracy per split, and the table of
+    :func:`detector_table`: hbench beside the classical baselines
+    (:mod:`hbench.diagnose.baselines`) on the same records."""
     ap = argparse.ArgumentParser(prog="python -m hbench.diagnose.calibrate real")
     ap.add_argument("folder")
     ap.add_argument("--split", action="append", default=None)
