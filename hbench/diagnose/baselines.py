@@ -88,7 +88,7 @@ def gated(x: np.ndarray) -> Verdict | None:
     regular, r = oscillation(x)
     if regular:
         return None
-    return Verdict(NO_STICTION, float("nan"), f"no regular oscillation (r = {r:.2f} <= 1)")
+    return Verdict(NO_STICTION, float("nan"), f"no regular oscillation: r = {r:.2f} <= 1")
 
 
 def horch(x: np.ndarray, y: np.ndarray) -> Verdict:

@@ -358,7 +358,7 @@ def main_real(argv: Sequence[str] | None = None) -> int:
     rows = score_stictiongpt(args.folder, splits, args.jobs)
     for r in rows:
         sc = " ".join(f"{k[:4]}={v:.1f}" for k, v in r["scores"].items())
-        base = " ".join(f"{k}={v.verdict}({v.statistic:.2f})" for k, v in r["baselines"].items())
+        base = " ".join(f"{k}={v.verdict} ({v.why})" for k, v in r["baselines"].items())
         print(
             f"{r['split'][:4]} {'ok ' if r['correct'] else 'BAD'} {r['label']:12s} "
             f"{r['class']!s:10s} {r['loop_tag'][:24]:24s} {sc} | {base} "
