@@ -77,6 +77,9 @@ def test_stiction_verdict_accuracy(capsys: pytest.CaptureFixture[str]) -> None:
                     f"  wrong: {r['split']:11s} {r['label']:11s} -> {r['class']} "
                     f"{r['file']} {r['message']}"
                 )
+        print(calibrate.detector_table(rows, ["development", "evaluation"]))
     assert dev[1] == 48 and ev[1] == 32
+    assert all(set(r["verdicts"]) == {"hbench", "horch", "he"} for r in rows)
+    assert calibrate.detector_rates(rows, "evaluation", "hbench")["accuracy"][:2] == ev
     assert dev[0] >= DEVELOPMENT_CORRECT
     assert ev[0] >= EVALUATION_CORRECT

@@ -235,7 +235,9 @@ def run_plant_log(path: Any) -> dict[str, Any]:
 def score_stictiongpt(
     folder: Any, splits: Sequence[str] = ("development", "evaluation"), jobs: int = 1
 ) -> list[dict[str, Any]]:
-    """The stiction verdict (class ``stiction`` or not) on every record of ``splits``."""
+    """The stiction verdict (class ``stiction`` or not) on every record of ``splits``, and the
+    classical baselines' verdicts on the same records (:func:`score_baselines`): every row's
+    ``verdicts`` maps ``hbench`` and each baseline to its verdict."""
     from pathlib import Path
 
     rows = [r for r in stictiongpt_index(folder) if r["split"] in splits]
@@ -255,8 +257,46 @@ def score_stictiongpt(
                 "message": res.get("message", ""),
                 "scores": res.get("nonlinearity", {}).get("scores", {}),
                 "cause": res.get("cause"),
+                "verdicts": {"hbench": verdict if res["status"] == 0 else REFUSED},
             }
         )
+    return score_baselines(folder, out)
+
+
+#: The verdict of a detector on a record it cannot read (counted wrong).
+REFUSED = "refused"
+
+
+def run_baselines(path: Any) -> tuple[dict[str, Any], str]:
+    """The classical detectors' verdicts (:func:`hbench.diagnose.baselines.verdicts`) on one
+    plant log, by name, and ``""``; no verdicts and the reason for a log the reader refuses."""
+    from hbench.diagnose import baselines
+    from hbench.errors import InputError
+    from hbench.readers import read_record
+
+    try:
+        rec = read_record(path)
+    except (InputError, OSError) as exc:
+        return {}, str(exc)
+    return dict(baselines.verdicts(rec.x[0], rec.y[0])), ""
+
+
+def score_baselines(folder: Any, rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """``rows`` (of ``INDEX.csv``) with the classical baselines run on each record: the
+    verdict of each (``stiction``, ``no-stiction``, ``undetermined``, or ``refused`` for a log
+    the reader refuses) added to ``verdicts``, the full answers (statistic, reason) under
+    ``baselines`` and the reader's reason for a refusal under ``baseline_message``."""
+    from pathlib import Path
+
+    from hbench.diagnose import baselines
+
+    out = []
+    for r in rows:
+        found, message = run_baselines(Path(folder) / r["file"])
+        verdicts = dict(r.get("verdicts", {}))
+        for name in baselines.DETECTORS:
+            verdicts[name] = found[name].verdict if name in found else REFUSED
+        out.append({**r, "verdicts": verdicts, "baselines": found, "baseline_message": message})
     return out
 
 
@@ -293,8 +333,63 @@ def accuracy_interval(
     return float(lo), float(hi)
 
 
+#: The measures of :func:`detector_rates`, each with the label of the records it is taken on
+#: (``None``: all records).
+MEASURES: dict[str, str | None] = {
+    "accuracy": None,
+    "sensitivity": "stiction",
+    "specificity": "no-stiction",
+}
+
+
+def detector_rates(
+    rows: Sequence[dict[str, Any]], split: str, detector: str
+) -> dict[str, tuple[int, int, float, float]]:
+    """Accuracy, sensitivity (records labelled stiction called stiction) and specificity
+    (records labelled no-stiction called no-stiction) of ``detector``'s verdicts
+    (``row["verdicts"][detector]``) on ``split``, each as ``(right, records, lo, hi)`` with
+    ``lo-hi`` the 95 % interval over loops of :func:`accuracy_interval`. A refused record and
+    an undetermined verdict count as wrong."""
+    out = {}
+    for measure, label in MEASURES.items():
+        sel = [
+            {
+                "split": split,
+                "loop_tag": r["loop_tag"],
+                "status": 0,
+                "correct": r["verdicts"][detector] == r["label"],
+            }
+            for r in rows
+            if r["split"] == split and label in (None, r["label"])
+        ]
+        lo, hi = accuracy_interval(sel, split)
+        out[measure] = (*accuracy(sel, split), lo, hi)
+    return out
+
+
+def detector_table(rows: Sequence[dict[str, Any]], splits: Sequence[str]) -> str:
+    """The text table of :func:`detector_rates` for every detector in the rows' ``verdicts``
+    (hbench first, then the baselines) on each split, with the count of undetermined verdicts."""
+    detectors = list(rows[0]["verdicts"]) if rows else []
+    head = f"{'split':12s}{'detector':9s}" + "".join(f"{m:>24s}" for m in MEASURES)
+    lines = [head + f"{'undetermined':>14s}"]
+    for split in splits:
+        for d in detectors:
+            cells = []
+            for k, n, lo, hi in detector_rates(rows, split, d).values():
+                cells.append(
+                    f"{k}/{n} = {100 * k / n:3.0f} % ({lo:3.0f}-{hi:3.0f})" if n else "n/a: none"
+                )
+            und = sum(r["verdicts"][d] == "undetermined" for r in rows if r["split"] == split)
+            lines.append(f"{split:12s}{d:9s}" + "".join(f"{c:>24s}" for c in cells) + f"{und:14d}")
+    return "\n".join(lines)
+
+
 def main_real(argv: Sequence[str] | None = None) -> int:
-    """``python -m hbench.diagnose.calibrate real FOLDER [--split S] [--jobs J]``."""
+    """``python -m hbench.diagnose.calibrate real FOLDER [--split S] [--jobs J]``: hbench's
+    stiction verdict on every record, its accuracy per split, and the table of
+    :func:`detector_table`: hbench beside the classical baselines
+    (:mod:`hbench.diagnose.baselines`) on the same records."""
     ap = argparse.ArgumentParser(prog="python -m hbench.diagnose.calibrate real")
     ap.add_argument("folder")
     ap.add_argument("--split", action="append", default=None)
@@ -304,9 +399,11 @@ def main_real(argv: Sequence[str] | None = None) -> int:
     rows = score_stictiongpt(args.folder, splits, args.jobs)
     for r in rows:
         sc = " ".join(f"{k[:4]}={v:.1f}" for k, v in r["scores"].items())
+        base = " ".join(f"{k}={v.verdict} ({v.why})" for k, v in r["baselines"].items())
         print(
             f"{r['split'][:4]} {'ok ' if r['correct'] else 'BAD'} {r['label']:12s} "
-            f"{r['class']!s:10s} {r['loop_tag'][:24]:24s} {sc} {r['message']}"
+            f"{r['class']!s:10s} {r['loop_tag'][:24]:24s} {sc} | {base} "
+            f"{r['message']} {r['baseline_message']}"
         )
     for split in splits:
         c, n = accuracy(rows, split)
@@ -317,6 +414,14 @@ def main_real(argv: Sequence[str] | None = None) -> int:
             f"95 % interval over loops {lo:.0f}-{hi:.0f} %); "
             f"{c2}/{n2} = {100 * c2 / max(n2, 1):.1f} % without them"
         )
+    print(
+        "\nhbench's stiction verdict beside the classical baselines (hbench.diagnose.baselines: "
+        "Horch's cross-correlation test, He et al.'s curve-fitting index, published limits; a "
+        "loop whose controller output does not oscillate regularly, Thornhill's r <= 1, is "
+        "no-stiction for both; refused records and undetermined verdicts count as wrong; "
+        "95 % intervals over loops):"
+    )
+    print(detector_table(rows, splits))
     return 0
 
 
