@@ -75,11 +75,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--rule",
-        default="validation",
-        choices=("validation", "detectors"),
-        help="how the cause is chosen: validation (default: every effect's extension is "
-        "fitted, the one that gains the most validation fit is named) or detectors (only the "
-        "extensions of the detectors that fired)",
+        default="auto",
+        choices=("auto", "validation", "detectors"),
+        help="how the cause is chosen: validation (every effect's extension is fitted, the one "
+        "that gains the most validation fit is named), detectors (only the extensions of the "
+        "detectors that fired), or auto (default: validation for p >= 2, detectors for p = 1)",
     )
     p.add_argument(
         "--delay-multiple",

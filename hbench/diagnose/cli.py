@@ -90,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
                 fit_fraction=args.fit_fraction,
                 delay_multiple=args.delay_multiple,
                 criterion=getattr(args, "criterion", "auto"),
-                rule=getattr(args, "rule", "validation"),
+                rule=getattr(args, "rule", "auto"),
             )
     except InputError:
         # a refused record: its one error line alone (a notice such as "'y' is constant" would

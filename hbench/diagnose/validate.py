@@ -446,7 +446,7 @@ def diagnose(
     criterion: str = "auto",
     also: tuple[Criterion, ...] = (),
     extend_all: bool = False,
-    rule: str = "validation",
+    rule: str = "auto",
 ) -> Diagnosis:
     """Run the workflow on a one-run record.
 
@@ -454,13 +454,17 @@ def diagnose(
     fits carry a start-up transient term; a plant log (``p = 1``) starts in steady operation.
     ``criterion`` names the validation criterion (:func:`choose_criterion`); ``also`` adds
     criteria whose fits are recorded beside it (``Diagnosis.fits``, ``Extension.fits``).
-    ``rule`` (:data:`CAUSE_RULES`) says how the cause is chosen: ``validation`` (default)
-    fits every effect's extension and names the one that gains the most validation fit;
-    ``detectors`` only those whose detector fired. ``extend_all`` fits every extension under
-    the ``detectors`` rule too (for calibration; the cause is still chosen among the fired).
+    ``rule`` (:data:`CAUSE_RULES`) says how the cause is chosen: ``validation`` fits every
+    effect's extension and names the one that gains the most validation fit; ``detectors``
+    only those whose detector fired; ``auto`` (default) is ``validation`` for ``p >= 2``,
+    where it is calibrated, and ``detectors`` for a plant log (``p = 1``). ``extend_all`` fits
+    every extension under the ``detectors`` rule too (for calibration; the cause is still
+    chosen among the fired).
     """
+    if rule == "auto":
+        rule = "validation" if record.p >= 2 else "detectors"
     if rule not in CAUSE_RULES:
-        raise InputError(f"unknown cause rule {rule!r} (choose {', '.join(CAUSE_RULES)})")
+        raise InputError(f"unknown cause rule {rule!r} (choose auto, {', '.join(CAUSE_RULES)})")
     with core.transient(record.p >= 2):
         return _diagnose(
             record,
