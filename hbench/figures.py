@@ -257,11 +257,12 @@ def fitness_vs_snr(stats: Any, label: Callable[[str], str], spread: str = "ci") 
                 color=st["color"], linestyle=st["linestyle"], label=label(m),
             )
             handles.setdefault(label(m), h)
-            if has_paper:
-                paper = s["paper"].astype(float)
+            paper = s["paper"].astype(float) if has_paper else None
+            if paper is not None and np.isfinite(paper).any():
+                at = np.isfinite(paper)
                 ax.plot(
-                    s["snr"] * dodge, paper, linestyle="none", marker=st["marker"], mfc="none",
-                    markersize=7, color=st["color"], markeredgewidth=1.0,
+                    (s["snr"] * dodge)[at], paper[at], linestyle="none", marker=st["marker"],
+                    mfc="none", markersize=7, color=st["color"], markeredgewidth=1.0,
                 )
         _log(ax, "x")
         ax.set_xlabel(SNR_LABEL)

@@ -200,7 +200,7 @@ def tex_level(label: str) -> str:
 
 def tex_power(v: float) -> str:
     """``0.001 -> 10^{-3}``, ``0.005 -> 5 \\cdot 10^{-3}``, ``0.5 -> 0.5``."""
-    if v == 0 or 0.01 <= abs(v) < 1000:
+    if v == 0 or 0.1 <= abs(v) < 1000:
         return f"{v:g}"
     exp = math.floor(math.log10(abs(v)))
     mant = round(v / 10.0**exp, 6)
@@ -248,6 +248,7 @@ def latex_grid(
         r"\begin{table*}[t]",
         r"\centering",
         r"\small",
+        r"\setlength{\tabcolsep}{4pt}",
         r"\caption{" + caption + "}",
         r"\label{" + label + "}",
         r"\begin{tabular}{" + spec + "}",

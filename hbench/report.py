@@ -434,16 +434,19 @@ def write_table(
     wrap_last : bool
         Let the last column's text wrap in LaTeX (a ``p`` column; long messages).
     """
-    from hbench.results import tex_escape, to_latex, to_markdown
+    from hbench.results import column_spec, tex_escape, to_latex, to_markdown
 
     lines = [line for line in (note, empty if table.empty else "") if line]
     md = to_markdown(_text_cells(table, _md_text))
     (out / f"{name}.md").write_text("".join(f"{_md_text(line)}\n\n" for line in lines) + md)
-    tex = to_latex(table, caption=f"hbench {name}")  # to_latex escapes the text cells
+    # to_latex escapes the text cells
+    tex = to_latex(table, caption=f"hbench {name}", label=f"tab:hbench-{name}")
     ncols = len(table.columns)
     if wrap_last and ncols:
-        spec = "{" + "l" * ncols + "}"
-        tex = tex.replace(spec, "{" + "l" * (ncols - 1) + r"p{0.4\linewidth}}", 1)
+        spec = column_spec(table)
+        tex = tex.replace(
+            "{" + spec + "}", "{" + spec[:-1] + r"p{0.4\linewidth}}", 1
+        )
     if table.empty and empty:
         span = rf"\multicolumn{{{ncols}}}{{p{{0.8\linewidth}}}}{{{tex_escape(empty)}}} \\"
         tex = tex.replace("\\bottomrule", span + "\n\\bottomrule", 1)

@@ -95,7 +95,8 @@ def read_tex(path: Path) -> pd.DataFrame:
     body = path.read_text().split(r"\toprule", 1)[1].split(r"\bottomrule", 1)[0]
     lines = [ln.strip().removesuffix(r"\\").strip() for ln in body.splitlines()]
     cells = [[c.strip() for c in ln.split(" & ")] for ln in lines if ln and ln != r"\midrule"]
-    header = [c.replace(r"\_", "_") for c in cells[0]]
+    names = {tex: name for name, tex in results.TEX_HEADERS.items()}
+    header = [names.get(c, c.replace(r"\_", "_")) for c in cells[0]]
     return pd.DataFrame(cells[1:], columns=header)
 
 
@@ -150,18 +151,55 @@ def test_sigma2_only_tables_get_no_snr_column(tmp_path: Path) -> None:
     assert list(shown["sigma2"]) == ["0.001", "0.01", "0.02"] * 2
 
 
-def test_csv_files_keep_the_contract(tmp_path: Path) -> None:
-    """The renderings changed, the CSV files did not: the aggregation's rows, in its order."""
+def test_csv_md_and_tex_files_agree(tmp_path: Path) -> None:
+    """Each table's CSV, Markdown and LaTeX files: the same columns in the same order, the same
+    rows in the same order (the contract's columns, and snr_target where SNR cells exist)."""
     rows = level_rows(sigma2s=SIGMA2S)
     paths = results.write_tables(rows, tmp_path)
-    fitness, bias = results.aggregate(rows)
-    expected = {"fitness": fitness, "bias": bias, "structure": results.structure(rows)}
+    fitness, bias = results.aggregate(rows, level=True)
+    expected = {"fitness": fitness, "bias": bias, "structure": results.structure(rows, level=True)}
     for name, table in expected.items():
+        shown = results.display_table(table)
         text = paths[f"{name}.csv"].read_text()
-        assert text == table.to_csv(index=False, float_format="%.10g"), name
-    assert list(fitness.columns) == results.FITNESS_COLUMNS
-    assert list(bias.columns) == results.BIAS_COLUMNS
+        assert text == shown.to_csv(index=False, float_format="%.10g"), name
+        csv = pd.read_csv(paths[f"{name}.csv"])
+        md, tex = read_md(tmp_path / f"{name}.md"), read_tex(tmp_path / f"{name}.tex")
+        assert list(csv.columns) == list(md.columns) == list(tex.columns), name
+        assert list(csv["method"]) == list(md["method"]) == list(tex["method"]), name
+        key = "sigma2" if name == "fitness" else "n"
+        as_text = [f"{v:.4g}" if v == v else "" for v in csv[key]]
+        assert as_text == list(md[key]) == list(tex[key]), name
+    cols = list(pd.read_csv(paths["fitness.csv"]).columns)
+    assert [c for c in cols if c != results.SNR_TARGET] == results.FITNESS_COLUMNS
+    assert cols[cols.index("sigma2") + 1] == results.SNR_TARGET
+    cols = list(pd.read_csv(paths["bias.csv"]).columns)
+    assert [c for c in cols if c != results.SNR_TARGET] == results.BIAS_COLUMNS
     assert pd.read_csv(paths["fitness.csv"])["sigma2"].isna().sum() == 2 * len(SNRS)
+
+
+def test_sigma2_only_csv_has_exactly_the_contract_columns(tmp_path: Path) -> None:
+    paths = results.write_tables(level_rows(snrs=(), sigma2s=(1e-2, 1e-3)), tmp_path)
+    assert list(pd.read_csv(paths["fitness.csv"]).columns) == results.FITNESS_COLUMNS
+    assert list(pd.read_csv(paths["bias.csv"]).columns) == results.BIAS_COLUMNS
+
+
+def test_latex_is_journal_ready() -> None:
+    """Right-aligned numbers, math headers, a label, exponents and infinite SNR in words."""
+    table = pd.DataFrame(
+        {
+            "method": ["wang-lsm", "oracle"],
+            "sigma2": [0.0, 1e-3],
+            "snr_mean": [math.inf, 12.5],
+            "parameter": ["a1", "b2"],
+            "std": [1.102e-09, -0.25],
+        }
+    )
+    tex = results.to_latex(table, caption="hbench bias", label="tab:x")
+    assert r"\begin{tabular}{lrrlr}" in tex and r"\label{tab:x}" in tex
+    assert r"Method & $\sigma^2$ & $\overline{\mathrm{SNR}}$ & Parameter & Std \\" in tex
+    assert r"wang-lsm & 0 & noise-free & $a_{1}$ & $1.102 \times 10^{-9}$ \\" in tex
+    assert r"oracle & 0.001 & 12.5 & $b_{2}$ & $-0.25$ \\" in tex
+    assert "inf" not in tex and "e-09" not in tex
 
 
 def test_display_table_orders_levels_and_keeps_parameter_order() -> None:
