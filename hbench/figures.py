@@ -59,6 +59,7 @@ def save(fig: Any, stem: Path | str | None, formats: Sequence[str] = ("png", "pd
     with plt.style.context(STYLE_FILE):
         fig.savefig(buf, format="png")
         png = buf.getvalue()
+        fig.set_layout_engine("none")  # the layout of the PNG, kept: computed once per figure
         if stem is not None:
             stem = Path(stem)
             for fmt in formats:
@@ -203,9 +204,17 @@ def _legend_top(fig: Any, handles: Sequence[Any], labels: Sequence[str], ncol: i
         fig.legend(handles, labels, loc="outside upper center", ncol=max(1, min(ncol, len(labels))))
 
 
-def _ncol(width: float) -> int:
-    """Legend columns that fit a figure ``width`` inches wide."""
-    return 2 if width <= COLUMN_WIDTH + 0.1 else 3
+def _ncol(width: float, labels: Sequence[str] = ()) -> int:
+    """Legend columns that fit a figure ``width`` inches wide: an entry takes its handle and
+    about 0.065 in per character at 8 pt."""
+    longest = max((len(t) for t in labels), default=12)
+    return max(1, min(3, int(width // (0.065 * longest + 0.6))))
+
+
+def _fits(labels: Sequence[str]) -> float:
+    """The narrowest journal width whose legend holds ``labels`` in at most three rows."""
+    ncol = _ncol(COLUMN_WIDTH, labels)
+    return COLUMN_WIDTH if math.ceil(len(labels) / ncol) <= 3 else PAGE_WIDTH
 
 
 def _paper_handle() -> Any:
@@ -235,10 +244,15 @@ def fitness_vs_snr(stats: Any, label: Callable[[str], str], spread: str = "ci") 
     facets = list(dict.fromkeys(stats["facet"]))
     rows, cols = _grid(len(facets))
     methods = list(dict.fromkeys(stats["method"]))
-    width = COLUMN_WIDTH if cols == 1 else PAGE_WIDTH
+    labels = [label(m) for m in methods] + ["paper (hollow)"]
+    width = _fits(labels) if cols == 1 else PAGE_WIDTH
+    ncol = _ncol(width, labels)
     fig, axes = plt.subplots(
-        rows, cols, figsize=(width, 2.4 * rows + 0.25 * math.ceil(len(methods) / _ncol(width)) + 0.4),
-        squeeze=False, layout="constrained",
+        rows,
+        cols,
+        figsize=(width, 2.4 * rows + 0.2 * math.ceil(len(labels) / ncol) + 0.4),
+        squeeze=False,
+        layout="constrained",
     )
     err_col = "fitness_ci" if spread == "ci" else "fitness_std"
     has_paper = "paper" in stats.columns and np.isfinite(stats["paper"].astype(float)).any()
@@ -273,7 +287,7 @@ def fitness_vs_snr(stats: Any, label: Callable[[str], str], spread: str = "ci") 
         ax.set_visible(False)
     if has_paper:
         handles["paper (hollow)"] = _paper_handle()
-    _legend_top(fig, list(handles.values()), list(handles), _ncol(width))
+    _legend_top(fig, list(handles.values()), list(handles), ncol)
     return fig
 
 
@@ -291,7 +305,8 @@ def bias_std_vs_snr(stats: Any, label: Callable[[str], str]) -> Any:
     series = list(dict.fromkeys(stats["series"]))
     facets = list(dict.fromkeys(s.partition(" | ")[2] for s in series))
     dashes = ("-", "--", ":", "-.")
-    height = 1.9 * max(len(params), 1) + 0.25 * math.ceil(len(series) / 3) + 0.4
+    ncol = _ncol(PAGE_WIDTH, [label(x) for x in series])
+    height = 1.9 * max(len(params), 1) + 0.2 * math.ceil(len(series) / ncol) + 0.4
     fig, axes = plt.subplots(
         len(params), 2, figsize=(PAGE_WIDTH, height), squeeze=False, layout="constrained"
     )
@@ -316,7 +331,7 @@ def bias_std_vs_snr(stats: Any, label: Callable[[str], str]) -> Any:
         for ax in axes[i]:
             _log(ax, "x")
             ax.set_xlabel(SNR_LABEL)
-    _legend_top(fig, list(handles.values()), list(handles), 3)
+    _legend_top(fig, list(handles.values()), list(handles), _ncol(PAGE_WIDTH, list(handles)))
     return fig
 
 
@@ -421,9 +436,10 @@ def time_per_method(stats: Any, label: Callable[[str], str]) -> Any:
     ax.set_yticks(y, [label(m) for m in s["method"]])
     ax.set_ylim(-0.6, len(s) - 0.4)
     _log(ax, "x", pad=True)
-    ax.set_xlabel(
-        f"identification time per run ({unit}) = batch time / runs\n"
-        "error bar: one std over runs (a batch's runs share its value)"
+    fig.supxlabel(
+        f"identification time per run ({unit})\n= batch time / runs; error bar: one std\n"
+        "over runs (a batch's runs share its value)",
+        fontsize="medium",
     )
     ax.grid(axis="y", visible=False)
     return fig
@@ -443,7 +459,7 @@ def ranking(stats: Any, label: Callable[[str], str]) -> Any:
     y = np.arange(len(s))
     ax.barh(y, s["mean_rank"], color=[method_style(m)["color"] for m in s["method"]], alpha=0.85)
     ax.set_yticks(y, [label(m) for m in s["method"]])
-    ax.set_xlabel("mean rank of fitness over cells (1 = best)")
+    fig.supxlabel("mean rank of fitness over cells (1 = best)", fontsize="medium")
     ax.set_xlim(0, max(float(s["mean_rank"].max()) + 0.5, 1.5))
     ax.grid(axis="y", visible=False)
     return fig
@@ -461,8 +477,11 @@ def hit_rate_vs_snr(stats: Any, label: Callable[[str], str]) -> Any:
 
     plt = pyplot()
     series = list(dict.fromkeys(stats["series"]))
+    labels = [label(x) for x in series] + ["total delay tau + m p", "tau only"]
+    width = _fits(labels)
+    ncol = _ncol(width, labels)
     fig, ax = plt.subplots(
-        figsize=(COLUMN_WIDTH, 2.6 + 0.25 * math.ceil((len(series) + 2) / 2)), layout="constrained"
+        figsize=(width, 2.6 + 0.2 * math.ceil(len(labels) / ncol)), layout="constrained"
     )
     drawn = stats[np.isfinite(stats["snr_mean"])]
     for i, s in enumerate(series):
@@ -480,6 +499,6 @@ def hit_rate_vs_snr(stats: Any, label: Callable[[str], str]) -> Any:
     _log(ax, "x")
     ax.set_xlabel(SNR_LABEL)
     ax.set_ylabel("hit rate (share of runs, -)")
-    handles, labels = ax.get_legend_handles_labels()
-    _legend_top(fig, handles, labels, 2)
+    handles, shown = ax.get_legend_handles_labels()
+    _legend_top(fig, handles, shown, ncol)
     return fig

@@ -105,6 +105,39 @@ def test_figures_are_journal_sized_and_leave_rcparams_alone(run_dir) -> None:
     assert {k for k in before if before[k] != after[k]} == set()
 
 
+def test_no_text_is_cut_at_the_figure_edge(run_dir) -> None:
+    """Legends, labels and tick labels lie inside the figure at its journal width (the saved
+    PNG and PDF show the whole figure)."""
+    from matplotlib.text import Text
+
+    rows, _ = report.load_rows(run_dir)
+    stats = report.cell_stats(rows)
+    stats["fitness"]["fitness_ci"] = 1.0
+    label = report.method_label  # the long labels: "... (reconstruction)", "... (oracle bound)"
+    drawn = [
+        figures.fitness_vs_snr(stats["fitness"], label),
+        figures.bias_std_vs_snr(stats["bias"], label),
+        figures.time_per_method(stats["timing"], label),
+        figures.ranking(stats["ranking"], label),
+    ]
+    try:
+        for fig in drawn:
+            renderer = fig.canvas.get_renderer()
+            fig.draw_without_rendering()
+            box = fig.bbox
+            for text in fig.findobj(Text):
+                if not text.get_visible() or not text.get_text().strip():
+                    continue
+                ext = text.get_window_extent(renderer)
+                if ext.x1 < box.x0 or ext.x0 > box.x1 or ext.y1 < box.y0 or ext.y0 > box.y1:
+                    continue  # not drawn (a tick label outside the axis' limits)
+                assert ext.x0 >= box.x0 - 1 and ext.x1 <= box.x1 + 1, text.get_text()
+                assert ext.y0 >= box.y0 - 1 and ext.y1 <= box.y1 + 1, text.get_text()
+    finally:
+        for fig in drawn:
+            figures.pyplot().close(fig)
+
+
 def test_style_file_is_reusable() -> None:
     import matplotlib.pyplot as plt
 

@@ -17,7 +17,7 @@ def test_time_figure_says_runs_share_their_batchs_time() -> None:
     )
     fig = figures.time_per_method(stats, str)
     try:
-        label = fig.axes[0].get_xlabel()
+        label = fig.get_supxlabel()
         assert "time per run (ms)" in label  # times of milliseconds: in ms
         assert "batch time / runs" in label and "a batch's runs share its value" in label
         assert fig.axes[0].get_xscale() == "log"
@@ -33,7 +33,7 @@ def test_time_figure_is_logarithmic_in_microseconds_for_fast_methods() -> None:
     fig = figures.time_per_method(stats, str)
     try:
         ax = fig.axes[0]
-        assert "(µs)" in ax.get_xlabel() and ax.get_xscale() == "log"
+        assert "(µs)" in fig.get_supxlabel() and ax.get_xscale() == "log"
         lo, hi = ax.get_xlim()
         assert 0 < lo < 4.0 and hi > 20.0
     finally:
