@@ -145,11 +145,11 @@ def _xu(ax: Any, x: Any, U: Any, color: str = "C0", lines: bool = True) -> None:
 
 
 @styled
-def figure_xu(x: Any, U: Any, ylabel: str, title: str) -> Any:
+def figure_xu(x: Any, U: Any, ylabel: str, title: str, color: str = "k") -> Any:
     """x(n) against U(n) for one realisation (the paper's Figures 4 and 5)."""
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(COLUMN_WIDTH, 3.0), layout="constrained")
-    _xu(ax, x, U)
+    _xu(ax, x, U, color)
     ax.set_xlabel(f"controller output x(n) ({UNITLESS})")
     ax.set_ylabel(ylabel)
     ax.set_title(title)
@@ -163,6 +163,7 @@ def figure4(example: Mapping[str, Any], estimate: str = "wang-lsm") -> Any:
         example["estimates"][estimate],
         f"estimated U(n), b1 = 1 ({UNITLESS})",
         f"Figure 4: x(n) vs estimated U(n) [{estimate}]\n{_where(example)}",
+        method_style(estimate)["color"],
     )
 
 

@@ -824,8 +824,12 @@ def build_report(
     rows: Any = None,
     jobs: int = 1,
     extra_figures: Sequence[Any] = (),
+    spread: str = "ci",
 ) -> Path:
     """Write the report of ``run_dir`` into ``out``; returns the path of ``report.html``.
+
+    ``spread`` is what the fitness figure's error bars show: ``"ci"`` the 95 % interval of the
+    mean, ``"std"`` one standard deviation over the runs.
 
     ``rows`` (already in memory) skips reading ``rows.parquet``; ``jobs > 1`` renders the
     figures in forked worker processes; ``extra_figures`` (:data:`hbench.figures.FigureSpec`)
@@ -834,6 +838,8 @@ def build_report(
     from hbench import figures, report_beyond
     from hbench.results import aggregate, display_table, new_output_dir, structure
 
+    if spread not in figures.SPREADS:  # before any work
+        raise InputError(f"--spread must be one of {', '.join(figures.SPREADS)}, got {spread!r}")
     run_dir = Path(run_dir)
     if rows is None:
         rows, files = load_rows(run_dir)
@@ -889,8 +895,13 @@ def build_report(
         (
             stats["fitness"]["fitness_mean"].notna().any(),
             "fig-fitness-snr",
-            (out / "fitness_snr", "fitness_vs_snr", (stats["fitness"], method_label), {}),
-            "Fitness (mean with the 95 % interval of the mean over runs) against the mean SNR of "
+            (
+                out / "fitness_snr",
+                "fitness_vs_snr",
+                (stats["fitness"], method_label),
+                {"spread": spread},
+            ),
+            f"Fitness (mean, error bars {figures.SPREADS[spread]}) against the mean SNR of "
             "each cell, per method; the paper's values, where published, as hollow markers in "
             "the method's colour (noise-free cells, with infinite SNR, are not drawn).",
             missing("fig-fitness-snr", "no fitness against SNR to draw", "No ok run has a fitness"),
@@ -1044,7 +1055,9 @@ def _cmd(args: argparse.Namespace) -> int:
     if args.out:  # before any work: a folder one can write in
         check_output(args.out, "--out", folder=True)
     jobs = max(1, min(2, len(os.sched_getaffinity(0))))
-    path = build_report(Path(args.run_dir), Path(args.out) if args.out else None, jobs=jobs)
+    path = build_report(
+        Path(args.run_dir), Path(args.out) if args.out else None, jobs=jobs, spread=args.spread
+    )
     print(path)
     return 0
 
@@ -1060,5 +1073,12 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     )
     p.add_argument("run_dir", metavar="RUN_DIR", help="a sweep's or a reproduction's folder")
     p.add_argument("--out", default=None, help="output folder (default RUN_DIR/report/)")
+    p.add_argument(
+        "--spread",
+        choices=("ci", "std"),
+        default="ci",
+        help="error bars of the fitness figure: the 95 %% interval of the mean (default) or "
+        "one std over the runs",
+    )
     p.set_defaults(func=_cmd)
     return p

@@ -14,6 +14,7 @@ import pandas as pd
 import pytest
 
 from hbench import figures, report, scenarios
+from hbench.errors import InputError
 from hbench.runner import methods_from_names, run_cell
 from hbench.style import COLUMN_WIDTH, PAGE_WIDTH, STYLE_FILE, method_style
 
@@ -125,12 +126,20 @@ def test_no_text_is_cut_at_the_figure_edge(run_dir) -> None:
             renderer = fig.canvas.get_renderer()
             fig.draw_without_rendering()
             box = fig.bbox
-            for text in fig.findobj(Text):
-                if not text.get_visible() or not text.get_text().strip():
+            ticks, shown = set(), []
+            for ax in fig.axes:
+                for axis in (ax.xaxis, ax.yaxis):
+                    lo, hi = sorted(axis.get_view_interval())
+                    for tick in axis.get_major_ticks() + axis.get_minor_ticks():
+                        ticks.update((tick.label1, tick.label2))
+                        # matplotlib draws only the ticks inside the axis' limits
+                        if lo <= tick.get_loc() <= hi and tick.label1.get_visible():
+                            shown.append(tick.label1)
+            shown += [t for t in fig.findobj(Text) if t not in ticks and t.get_visible()]
+            for text in shown:
+                if not text.get_text().strip():
                     continue
                 ext = text.get_window_extent(renderer)
-                if ext.x1 < box.x0 or ext.x0 > box.x1 or ext.y1 < box.y0 or ext.y0 > box.y1:
-                    continue  # not drawn (a tick label outside the axis' limits)
                 assert ext.x0 >= box.x0 - 1 and ext.x1 <= box.x1 + 1, text.get_text()
                 assert ext.y0 >= box.y0 - 1 and ext.y1 <= box.y1 + 1, text.get_text()
     finally:
@@ -246,3 +255,31 @@ def test_fitness_figure_has_paper_markers_where_published(run_dir) -> None:
         assert to_hex(hollow[0].get_color()) == to_hex(method_style("wang-lsm")["color"])
     finally:
         figures.pyplot().close(fig)
+
+
+def test_spread_option_switches_the_error_bars(run_dir, tmp_path, run_cli) -> None:
+    """The fitness figure's error bars: the 95 % interval by default, one std with
+    ``--spread std``; the caption says which."""
+    rows, _ = report.load_rows(run_dir)
+    fitness = report.cell_stats(rows)["fitness"].assign(fitness_ci=0.123, fitness_std=4.56)
+
+    def half_widths(spread: str) -> set[float]:
+        fig = figures.fitness_vs_snr(fitness, str, spread=spread)
+        try:
+            out = set()
+            for ax in fig.axes:
+                for coll in ax.collections:  # the error bars
+                    for seg in coll.get_segments():
+                        out.add(round(abs(seg[1][1] - seg[0][1]) / 2, 3))
+            return out
+        finally:
+            figures.pyplot().close(fig)
+
+    assert half_widths("ci") == {0.123} and half_widths("std") == {4.56}
+    status, _, err = run_cli(["report", str(run_dir), "--out", str(tmp_path / "s"), "--spread", "std"])
+    assert status == 0, err
+    page = (tmp_path / "s" / "report.html").read_text(encoding="utf-8")
+    assert "error bars ± one std over runs" in page
+    with pytest.raises(InputError, match="--spread must be one of ci, std"):
+        report.build_report(run_dir, tmp_path / "bad", spread="sem")
+    assert not (tmp_path / "bad").exists()  # refused before any work
