@@ -460,7 +460,7 @@ def write_table(
 
 CSS = """
 body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:2em auto;
-max-width:1150px;color:#222;line-height:1.4;padding:0 1em}
+max-width:1250px;color:#222;line-height:1.4;padding:0 1em}
 h1{font-size:1.6em}
 h2{font-size:1.25em;border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:2em}
 h3{font-size:1.05em}
@@ -478,7 +478,9 @@ pre{background:#f6f6f6;padding:.8em;overflow-x:auto;font-size:.78em;max-height:3
 details{margin:.4em 0 1em}summary{cursor:pointer;color:#245}
 .hidden-cols{font-size:.8em;color:#666;margin-top:-.8em}
 table.headline td{vertical-align:top;line-height:1.25}
-table.headline tbody th{text-align:left;background:none;border-bottom:none;border-top:1px solid #ddd}
+table.headline tbody th{text-align:left;background:none;border-bottom:none;border-top:1px solid #ddd;
+white-space:normal;min-width:7em;max-width:11em}
+table.headline td{padding:.25em .4em}
 table.headline .paper{color:#666;font-size:.9em}
 table.headline .diff{color:#345;font-size:.9em}
 table.headline td.win{background:#eef6ee}
