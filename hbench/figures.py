@@ -30,13 +30,21 @@ SNR_LABEL = "SNR ||y0||/||v|| (ratio of norms)"
 
 
 def pyplot() -> Any:
-    """``matplotlib.pyplot`` on the Agg backend (the style is applied per figure, :func:`styled`)."""
+    """``matplotlib.pyplot`` on the Agg backend (the style is set per figure: :func:`styled`)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     return plt
+
+
+def warm_up() -> None:
+    """Import what rendering needs (pyplot, the PDF backend and its TrueType subsetting), so
+    that it is imported once, e.g. while other work runs or before forking workers."""
+    pyplot()
+    import fontTools.subset  # noqa: F401
+    import matplotlib.backends.backend_pdf  # noqa: F401
 
 
 def styled(func: Callable[..., Any]) -> Callable[..., Any]:
@@ -87,7 +95,7 @@ def render_many(specs: Sequence[FigureSpec], processes: int = 1) -> list[bytes]:
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
-    pyplot()  # import once in the parent: the forked workers inherit it
+    warm_up()  # import once in the parent: the forked workers inherit it
     ctx = multiprocessing.get_context("fork")
     # the costliest first, so that the workers finish together
     order = sorted(range(len(specs)), key=lambda i: -_COST.get(specs[i][1], 1))
@@ -268,16 +276,27 @@ def fitness_vs_snr(stats: Any, label: Callable[[str], str], spread: str = "ci") 
             dodge = 1.0 + 0.015 * (i - (len(methods) - 1) / 2)  # separate the error bars
             err = s[err_col].astype(float).fillna(0.0) if err_col in s.columns else None
             h = ax.errorbar(
-                s["snr"] * dodge, s["fitness_mean"], yerr=err, marker=st["marker"],
-                color=st["color"], linestyle=st["linestyle"], label=label(m),
+                s["snr"] * dodge,
+                s["fitness_mean"],
+                yerr=err,
+                marker=st["marker"],
+                color=st["color"],
+                linestyle=st["linestyle"],
+                label=label(m),
             )
             handles.setdefault(label(m), h)
             paper = s["paper"].astype(float) if has_paper else None
             if paper is not None and np.isfinite(paper).any():
                 at = np.isfinite(paper)
                 ax.plot(
-                    (s["snr"] * dodge)[at], paper[at], linestyle="none", marker=st["marker"],
-                    mfc="none", markersize=7, color=st["color"], markeredgewidth=1.0,
+                    (s["snr"] * dodge)[at],
+                    paper[at],
+                    linestyle="none",
+                    marker=st["marker"],
+                    mfc="none",
+                    markersize=7,
+                    color=st["color"],
+                    markeredgewidth=1.0,
                 )
         _log(ax, "x")
         ax.set_xlabel(SNR_LABEL)
@@ -349,8 +368,12 @@ def xu_grid(panels: Sequence[Mapping[str, Any]], label: Callable[[str], str]) ->
     rows_per = math.ceil((1 + n_est) / cols)
     n_rows = rows_per * len(panels)
     fig, axes = plt.subplots(
-        n_rows, cols, figsize=(PAGE_WIDTH, 1.9 * n_rows + 0.3), squeeze=False,
-        layout="constrained", sharex=True,
+        n_rows,
+        cols,
+        figsize=(PAGE_WIDTH, 1.9 * n_rows + 0.3),
+        squeeze=False,
+        layout="constrained",
+        sharex=True,
     )
     for i, p in enumerate(panels):
         cells = [("true U", p["U"], "k")]
@@ -492,8 +515,18 @@ def hit_rate_vs_snr(stats: Any, label: Callable[[str], str]) -> Any:
         st = method_style(s)
         dodge = 1.0 + 0.012 * (i - (len(series) - 1) / 2)  # overlapping lines stay visible
         x = d["snr_mean"] * dodge
-        ax.plot(x, d["delay_hit_rate"], marker=st["marker"], ls="-", color=st["color"], label=label(s))
-        ax.plot(x, d["tau_hit_rate"], marker=st["marker"], ls="--", color=st["color"], alpha=0.7, mfc="none")
+        ax.plot(
+            x, d["delay_hit_rate"], marker=st["marker"], ls="-", color=st["color"], label=label(s)
+        )
+        ax.plot(
+            x,
+            d["tau_hit_rate"],
+            marker=st["marker"],
+            ls="--",
+            color=st["color"],
+            alpha=0.7,
+            mfc="none",
+        )
     ax.plot([], [], "k-", label="total delay tau + m p")
     ax.plot([], [], "k--", label="tau only")
     ax.set_ylim(-0.03, 1.03)

@@ -127,26 +127,42 @@ def _main_text(c: dict[str, Any]) -> str:
     return text + (f" ± {fmt(c['half'], d)}" if math.isfinite(c["half"]) else "")
 
 
+def _cell_lines(c: dict[str, Any]) -> list[tuple[str, str]]:
+    """A headline cell's lines as ``(kind, text)``: ``main`` (mean ± half-width), ``paper``
+    (where published) and ``diff`` (the paired difference, where there is one)."""
+    lines = [("main", _main_text(c))]
+    if math.isfinite(c["paper"]):
+        lines.append(("paper", f"paper {fmt(c['paper'], 2)}"))
+    diff = _diff_text(c)
+    return lines + ([("diff", diff)] if diff else [])
+
+
+def _grid_rows(summary: pd.DataFrame, label: Callable[[str], str]) -> Any:
+    """``(level columns, [(method row, [cell or None per column])])`` of the headline."""
+    cols = level_columns(summary)
+    rows = [(row, [row["cells"].get(k) for k, _ in cols]) for row in fitness_grid(summary, label)]
+    return cols, rows
+
+
 def fitness_html(summary: pd.DataFrame, label: Callable[[str], str], table_id: str) -> str:
     """The fitness headline as an HTML table (winner in bold, the paper's value and the paired
     difference under each number)."""
-    cols = level_columns(summary)
+    cols, rows = _grid_rows(summary, label)
     head = "<th>method</th>" + "".join(f"<th>{html.escape(t)}</th>" for _, t in cols)
     body = []
-    for row in fitness_grid(summary, label):
+    for row, cells in rows:
         tds = []
-        for key, _ in cols:
-            c = row["cells"].get(key)
+        for c in cells:
             if c is None:
                 tds.append("<td></td>")
                 continue
-            main = html.escape(_main_text(c))
-            lines = [f"<b>{main}</b>" if c["best"] else main]
-            if math.isfinite(c["paper"]):
-                lines.append(f'<span class="paper">paper {html.escape(fmt(c["paper"], 2))}</span>')
-            diff = _diff_text(c)
-            if diff:
-                lines.append(f'<span class="diff">{html.escape(diff)}</span>')
+            lines = []
+            for kind, text in _cell_lines(c):
+                text = html.escape(text)
+                if kind == "main":
+                    lines.append(f"<b>{text}</b>" if c["best"] else text)
+                else:
+                    lines.append(f'<span class="{kind}">{text}</span>')
             klass = ' class="win"' if c["best"] else ""
             tds.append(f"<td{klass}>" + "<br>".join(lines) + "</td>")
         klass = ' class="bound"' if row["bound"] else ""
@@ -159,24 +175,20 @@ def fitness_html(summary: pd.DataFrame, label: Callable[[str], str], table_id: s
 
 def fitness_markdown(summary: pd.DataFrame, label: Callable[[str], str]) -> str:
     """The fitness headline as a Markdown table (the same cells as the HTML one)."""
-    cols = level_columns(summary)
+    cols, rows = _grid_rows(summary, label)
     lines = [
         "| method | " + " | ".join(t for _, t in cols) + " |",
         "|---|" + "---:|" * len(cols),
     ]
-    for row in fitness_grid(summary, label):
-        cells = []
-        for key, _ in cols:
-            c = row["cells"].get(key)
-            if c is None:
-                cells.append("")
-                continue
-            parts = [f"**{_main_text(c)}**" if c["best"] else _main_text(c)]
-            if math.isfinite(c["paper"]):
-                parts.append(f"paper {fmt(c['paper'], 2)}")
-            parts += [t for t in [_diff_text(c)] if t]
-            cells.append("<br>".join(parts))
-        lines.append(f"| {row['label']} | " + " | ".join(cells) + " |")
+    for row, cells in rows:
+        texts = []
+        for c in cells:
+            parts = [
+                f"**{text}**" if kind == "main" and c["best"] else text
+                for kind, text in (_cell_lines(c) if c is not None else [])
+            ]
+            texts.append("<br>".join(parts))
+        lines.append(f"| {row['label']} | " + " | ".join(texts) + " |")
     return f"Fitness F (%), mean ± 95 % half-interval. {METHOD_NOTE}\n\n" + "\n".join(lines) + "\n"
 
 
@@ -265,7 +277,9 @@ def latex_grid(
             d = decimals[j]
             parts.append(_tex_num(mean, d, bold))
             parts.append(
-                rf"$\pm$\,{_tex_num(half, d)}" if math.isfinite(half) and math.isfinite(mean) else ""
+                rf"$\pm$\,{_tex_num(half, d)}"
+                if math.isfinite(half) and math.isfinite(mean)
+                else ""
             )
         out.append(" & ".join(parts) + r" \\")
     out += [r"\bottomrule", r"\end{tabular}"]
@@ -345,7 +359,10 @@ def bias_latex(bias: pd.DataFrame, label: Callable[[str], str], name: str = "sum
                 rows.append(
                     (
                         r"\quad paper",
-                        [(c["paper_bias"], math.nan, False) if c is not None else nan for c in cells],
+                        [
+                            (c["paper_bias"], math.nan, False) if c is not None else nan
+                            for c in cells
+                        ],
                     )
                 )
             rows.append(
@@ -380,9 +397,17 @@ def bias_html(bias: pd.DataFrame, label: Callable[[str], str], table_id: str) ->
                 continue
             half = (c["bias_ci_high"] - c["bias_ci_low"]) / 2
             d = digits(float(half), default=4, most=5)
-            lines = [html.escape(f"{fmt(c['bias'], d)} ± {fmt(half, d)}" if math.isfinite(half) else fmt(c["bias"], d))]
+            lines = [
+                html.escape(
+                    f"{fmt(c['bias'], d)} ± {fmt(half, d)}"
+                    if math.isfinite(half)
+                    else fmt(c["bias"], d)
+                )
+            ]
             if math.isfinite(c["paper_bias"]):
-                lines.append(f'<span class="paper">paper {html.escape(fmt(c["paper_bias"], d))}</span>')
+                lines.append(
+                    f'<span class="paper">paper {html.escape(fmt(c["paper_bias"], d))}</span>'
+                )
             lines.append(f'<span class="diff">RMSE {html.escape(fmt(c["rmse"], d))}</span>')
             tds.append("<td>" + "<br>".join(lines) + "</td>")
         body.append(

@@ -444,9 +444,7 @@ def write_table(
     ncols = len(table.columns)
     if wrap_last and ncols:
         spec = column_spec(table)
-        tex = tex.replace(
-            "{" + spec + "}", "{" + spec[:-1] + r"p{0.4\linewidth}}", 1
-        )
+        tex = tex.replace("{" + spec + "}", "{" + spec[:-1] + r"p{0.4\linewidth}}", 1)
     if table.empty and empty:
         span = rf"\multicolumn{{{ncols}}}{{p{{0.8\linewidth}}}}{{{tex_escape(empty)}}} \\"
         tex = tex.replace("\\bottomrule", span + "\n\\bottomrule", 1)
@@ -478,8 +476,8 @@ pre{background:#f6f6f6;padding:.8em;overflow-x:auto;font-size:.78em;max-height:3
 details{margin:.4em 0 1em}summary{cursor:pointer;color:#245}
 .hidden-cols{font-size:.8em;color:#666;margin-top:-.8em}
 table.headline td{vertical-align:top;line-height:1.25}
-table.headline tbody th{text-align:left;background:none;border-bottom:none;border-top:1px solid #ddd;
-white-space:normal;min-width:7em;max-width:11em}
+table.headline tbody th{text-align:left;background:none;border-bottom:none;
+border-top:1px solid #ddd;white-space:normal;min-width:7em;max-width:11em}
 table.headline td{padding:.25em .4em}
 table.headline .paper{color:#666;font-size:.9em}
 table.headline .diff{color:#345;font-size:.9em}
@@ -497,8 +495,12 @@ def _empty_columns(table: Any) -> list[str]:
     out = []
     for c in table.columns:
         col = table[c]
-        if len(col) and all(v is None or (isinstance(v, str) and not v.strip()) or
-                            (isinstance(v, float) and math.isnan(v)) for v in col):
+        if len(col) and all(
+            v is None
+            or (isinstance(v, str) and not v.strip())
+            or (isinstance(v, float) and math.isnan(v))
+            for v in col
+        ):
             out.append(c)
     return out
 
@@ -637,8 +639,10 @@ def _provenance_html(prov: Sequence[tuple[Path, Mapping[str, Any]]], run_dir: Pa
     if differing:
         table = pd.DataFrame(
             {"file": [str(p.relative_to(run_dir)) for p, _ in prov]}
-            | {k: [json.dumps(v, default=str) if isinstance(v, list | dict) else v for v in vs]
-               for k, vs in differing.items()}
+            | {
+                k: [json.dumps(v, default=str) if isinstance(v, list | dict) else v for v in vs]
+                for k, vs in differing.items()
+            }
         )
         parts.append("<p>What differs between the files:</p>")
         parts.append(
@@ -797,8 +801,7 @@ def _empty_reasons(none_ok: bool, status_line: str) -> dict[str, str]:
     return {
         "fitness": "No ok run has a fitness: this table is empty.",
         "bias": "No ok run has parameter estimates (a1, a2, ..., b2, ...): this table is empty.",
-        "structure": "No ok run has structure estimates (na, nb, tau, delay): this table is "
-        "empty.",
+        "structure": "No ok run has structure estimates (na, nb, tau, delay): this table is empty.",
         "ranking": "No blind method has a fitness in any cell: nothing to rank (oracles are "
         "bounds, not ranked).",
         "timing": "No ok run has a time: this table is empty.",

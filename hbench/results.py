@@ -363,9 +363,7 @@ def _tex_label(text: str) -> str:
     return "tab:" + "-".join(re.findall(r"[a-z0-9]+", text.lower()))[:60]
 
 
-def to_latex(
-    table: pd.DataFrame, caption: str = "", floatfmt: str = ".4g", label: str = ""
-) -> str:
+def to_latex(table: pd.DataFrame, caption: str = "", floatfmt: str = ".4g", label: str = "") -> str:
     """A booktabs LaTeX table ready for a paper.
 
     Parameters

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterable
-from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -65,7 +64,9 @@ METHOD_NOTE = (
 )
 
 
-def t_interval(values: Iterable[float], confidence: float = CONFIDENCE) -> tuple[float, float, float]:
+def t_interval(
+    values: Iterable[float], confidence: float = CONFIDENCE
+) -> tuple[float, float, float]:
     """``(mean, low, high)``: the Student t interval of the mean of the finite ``values``.
 
     One value gives its mean and an unknown (nan) interval; none gives nan throughout.
@@ -135,10 +136,12 @@ def summary(
     fit = r[r["quantity"] == "fitness"]
     methods = list(dict.fromkeys(rows["method"]))
     out = []
-    for key, g in fit.groupby(_GROUP, sort=True, dropna=False):
+    for _, g in fit.groupby(_GROUP, sort=True, dropna=False):
         first = g.iloc[0]
         # one column per method, one row per shared realisation
-        wide = g.pivot_table(index=["run", "seed"], columns="method", values="value", aggfunc="first")
+        wide = g.pivot_table(
+            index=["run", "seed"], columns="method", values="value", aggfunc="first"
+        )
         present = [m for m in methods if m in wide.columns]
         stats = {m: t_interval(wide[m]) for m in present}
         blind = [m for m in present if not bound(m) and math.isfinite(stats[m][0])]
@@ -241,7 +244,9 @@ def _paper_column(table: pd.DataFrame, paper: pd.DataFrame | None, on: list[str]
     return pd.Series(merged["paper"].to_numpy(float), index=table.index)
 
 
-def _sorted(table: pd.DataFrame, methods: list[str], extra: list[str] | None = None) -> pd.DataFrame:
+def _sorted(
+    table: pd.DataFrame, methods: list[str], extra: list[str] | None = None
+) -> pd.DataFrame:
     """Rows by cell (noise rising: SNR cells by rising target SNR reversed, then sigma^2),
     then by method in order of appearance."""
     t = table.copy()

@@ -276,7 +276,9 @@ def test_spread_option_switches_the_error_bars(run_dir, tmp_path, run_cli) -> No
             figures.pyplot().close(fig)
 
     assert half_widths("ci") == {0.123} and half_widths("std") == {4.56}
-    status, _, err = run_cli(["report", str(run_dir), "--out", str(tmp_path / "s"), "--spread", "std"])
+    status, _, err = run_cli(
+        ["report", str(run_dir), "--out", str(tmp_path / "s"), "--spread", "std"]
+    )
     assert status == 0, err
     page = (tmp_path / "s" / "report.html").read_text(encoding="utf-8")
     assert "error bars ± one std over runs" in page
