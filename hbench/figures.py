@@ -313,10 +313,12 @@ def fitness_vs_snr(stats: Any, label: Callable[[str], str], spread: str = "ci") 
 
 @styled
 def bias_std_vs_snr(stats: Any, label: Callable[[str], str]) -> Any:
-    """Bias and std of each parameter against SNR (rows: parameters; columns: bias, std).
+    """Bias and std of each parameter against SNR (rows: parameters; columns: bias, std); the
+    paper's bias (column ``paper_bias`` where present: published mean - true) as hollow markers.
 
     ``stats`` columns: ``series, parameter, snr, bias, std`` (``series`` names a line: the
-    method, plus its facet when there are several: facets differ by line style).
+    method, plus its facet when there are several: facets differ by line style, else the
+    method's own line style marks oracles and reconstructions).
     """
     import numpy as np
 
@@ -331,6 +333,7 @@ def bias_std_vs_snr(stats: Any, label: Callable[[str], str]) -> Any:
         len(params), 2, figsize=(PAGE_WIDTH, height), squeeze=False, layout="constrained"
     )
     handles: dict[str, Any] = {}
+    paper = False
     for i, par in enumerate(params):
         sub = stats[(stats["parameter"] == par) & np.isfinite(stats["snr"])]
         for s in series:
@@ -338,9 +341,24 @@ def bias_std_vs_snr(stats: Any, label: Callable[[str], str]) -> Any:
             if d.empty:
                 continue
             st = method_style(s)
-            ls = dashes[facets.index(s.partition(" | ")[2]) % len(dashes)]
+            ls = (
+                st["linestyle"]
+                if len(facets) == 1
+                else dashes[facets.index(s.partition(" | ")[2]) % len(dashes)]
+            )
             kw = {"color": st["color"], "marker": st["marker"], "linestyle": ls, "label": label(s)}
             (h,) = axes[i, 0].plot(d["snr"], d["bias"], **kw)
+            if "paper_bias" in d.columns and np.isfinite(d["paper_bias"].astype(float)).any():
+                axes[i, 0].plot(
+                    d["snr"],
+                    d["paper_bias"].astype(float),
+                    linestyle="none",
+                    marker=st["marker"],
+                    mfc="none",
+                    markersize=7,
+                    color=st["color"],
+                )
+                paper = True
             std = d["std"].where(d["std"] > 0)
             axes[i, 1].plot(d["snr"], std, **kw)
             handles.setdefault(label(s), h)
@@ -351,6 +369,8 @@ def bias_std_vs_snr(stats: Any, label: Callable[[str], str]) -> Any:
         for ax in axes[i]:
             _log(ax, "x")
             ax.set_xlabel(SNR_LABEL)
+    if paper:
+        handles["paper (hollow)"] = _paper_handle()
     _legend_top(fig, list(handles.values()), list(handles), _ncol(PAGE_WIDTH, list(handles)))
     return fig
 

@@ -744,20 +744,16 @@ def write_summary(out: Path, run_dir: Path, rows: Any) -> tuple[Any, Any]:
     return head, bias
 
 
-def _with_paper(fitness: Any, head: Any) -> Any:
-    """:func:`cell_stats`' fitness with the interval's half-width (``fitness_ci``) and the
-    paper's value (``paper``) of the headline summary."""
-    import numpy as np
-
-    keys = ["method", "nonlinearity", "p", "delay", "_s2", "_st"]
-    h = head.assign(
-        _s2=head["sigma2"].astype(float).fillna(-1.0),
-        _st=head["snr_target"].astype(float).fillna(-1.0),
-        fitness_ci=(head["fitness_ci_high"] - head["fitness_ci_low"]) / 2,
-    )[[*keys, "fitness_ci", "paper"]]
-    merged = fitness.merge(h, on=keys, how="left")
-    merged["fitness_ci"] = merged["fitness_ci"].astype(float).fillna(np.nan)
-    return merged
+def _with_summary(stats: Any, table: Any, columns: dict[str, Any], by: Sequence[str] = ()) -> Any:
+    """:func:`cell_stats`' ``stats`` with ``columns`` (name -> Series over ``table``) of a
+    headline table, matched by method, cell (and ``by``)."""
+    keys = ["method", "nonlinearity", "p", "delay", "_s2", "_st", *by]
+    t = table.assign(
+        _s2=table["sigma2"].astype(float).fillna(-1.0),
+        _st=table["snr_target"].astype(float).fillna(-1.0),
+        **columns,
+    )[[*keys, *columns]]
+    return stats.merge(t, on=keys, how="left")
 
 
 def _headline_html(head: Any, bias: Any) -> str:
@@ -859,7 +855,17 @@ def build_report(
 
     stats = cell_stats(rows)
     head, head_bias = write_summary(out, run_dir, rows)
-    stats["fitness"] = _with_paper(stats["fitness"], head)
+    # the interval's half-width and the paper's values for the figures
+    half = (head["fitness_ci_high"] - head["fitness_ci_low"]) / 2
+    stats["fitness"] = _with_summary(
+        stats["fitness"], head, {"fitness_ci": half, "paper": head["paper"]}
+    )
+    stats["bias"] = _with_summary(
+        stats["bias"],
+        head_bias,
+        {"paper_bias": head_bias["paper_bias"]},
+        by=["parameter"],
+    )
     # as the renderings show them: SNR cells told apart (column snr_target), sorted by level
     fitness_table, bias_table = (display_table(t) for t in aggregate(rows, level=True))
     structure_table = display_table(structure(rows, level=True))

@@ -53,6 +53,16 @@ def _colours(fig) -> dict[str, set[str]]:
     return out
 
 
+def _hollow(fig) -> list:
+    """The lines of hollow markers only (the paper's values)."""
+    return [
+        ln
+        for ax in fig.axes
+        for ln in ax.lines
+        if ln.get_markerfacecolor() == "none" and ln.get_linestyle() == "None"
+    ]
+
+
 def test_method_styles_are_fixed_by_name() -> None:
     assert method_style("wang-lsm") == method_style("wang-lsm | backlash, p=5, delay=3")
     assert method_style("wang-lsm")["color"] != method_style("wang-iv")["color"]
@@ -245,12 +255,7 @@ def test_fitness_figure_has_paper_markers_where_published(run_dir) -> None:
     published = np.where(fitness["method"] == "wang-lsm", 90.0, np.nan)
     fig = figures.fitness_vs_snr(fitness.assign(fitness_ci=1.0, paper=published), str)
     try:
-        hollow = [
-            ln
-            for ax in fig.axes
-            for ln in ax.lines
-            if ln.get_markerfacecolor() == "none" and ln.get_linestyle() == "None"
-        ]
+        hollow = _hollow(fig)
         assert len(hollow) == 1 and np.allclose(hollow[0].get_ydata(), 90.0)
         assert to_hex(hollow[0].get_color()) == to_hex(method_style("wang-lsm")["color"])
     finally:
@@ -285,3 +290,19 @@ def test_spread_option_switches_the_error_bars(run_dir, tmp_path, run_cli) -> No
     with pytest.raises(InputError, match="--spread must be one of ci, std"):
         report.build_report(run_dir, tmp_path / "bad", spread="sem")
     assert not (tmp_path / "bad").exists()  # refused before any work
+
+
+def test_bias_figure_has_the_papers_bias_hollow(run_dir) -> None:
+    from matplotlib.colors import to_hex
+
+    rows, _ = report.load_rows(run_dir)
+    bias = report.cell_stats(rows)["bias"]
+    published = np.where((bias["method"] == "wang-iv") & (bias["parameter"] == "a1"), 0.01, np.nan)
+    fig = figures.bias_std_vs_snr(bias.assign(paper_bias=published), str)
+    try:
+        hollow = _hollow(fig)
+        assert len(hollow) == 1 and np.allclose(hollow[0].get_ydata(), 0.01)
+        assert to_hex(hollow[0].get_color()) == to_hex(method_style("wang-iv")["color"])
+        assert fig.legends[0].get_texts()[-1].get_text() == "paper (hollow)"
+    finally:
+        figures.pyplot().close(fig)

@@ -12,8 +12,6 @@ from __future__ import annotations
 import html
 import math
 import re
-import shutil
-import subprocess
 import threading
 from datetime import UTC, datetime
 from pathlib import Path
@@ -25,6 +23,7 @@ import pytest
 
 from hbench import report, results
 from hbench.schema import TIDY_COLUMNS
+from tests.helpers import HAS_PDFLATEX, NO_PDFLATEX, compile_tex
 
 #: Target SNRs in an order where a text sort (2, 20, 5) and the old level sort (20, 5, 2) differ
 #: from the numeric one.
@@ -258,7 +257,7 @@ def test_report_tables_escaped_once(tmp_path: Path) -> None:
     assert r"{none\_ok: 100\% \& \textasciicircum{}} \\" in (tmp_path / "e.tex").read_text()
 
 
-@pytest.mark.skipif(shutil.which("pdflatex") is None, reason="needs pdflatex (and booktabs)")
+@pytest.mark.skipif(not HAS_PDFLATEX, reason=NO_PDFLATEX)
 def test_tex_files_compile(tmp_path: Path) -> None:
     rows = level_rows(sigma2s=SIGMA2S)
     results.write_tables(rows, tmp_path)
@@ -267,20 +266,8 @@ def test_tex_files_compile(tmp_path: Path) -> None:
     (tmp_path / "specials.tex").write_text(results.to_latex(table, caption=SPECIALS))
     report.write_table(tmp_path, "empty", table.iloc[:0], note=SPECIALS, empty=SPECIALS)
     files = sorted(tmp_path.rglob("*.tex"))
-    assert len(files) >= 9
-    doc = tmp_path / "doc.tex"
-    doc.write_text(
-        "\\documentclass{article}\n\\usepackage{booktabs}\n\\begin{document}\n"
-        + "".join(f"\\input{{{f.relative_to(tmp_path).as_posix()}}}\n" for f in files)
-        + "\\end{document}\n"
-    )
-    done = subprocess.run(
-        ["pdflatex", "-interaction=nonstopmode", "-halt-on-error", doc.name],
-        cwd=tmp_path,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    assert len(files) >= 9 and tmp_path / "report" / "summary.tex" in files
+    done = compile_tex(tmp_path, files)
     assert done.returncode == 0, done.stdout[-3000:]
 
 
