@@ -66,9 +66,7 @@ def method_style(name: str) -> dict[str, Any]:
     else:
         h = zlib.crc32(name.encode())
         color, marker = SPARE_COLOURS[h % len(SPARE_COLOURS)], SPARE_MARKERS[h % len(SPARE_MARKERS)]
-    if info["oracle"]:
-        color = METHOD_STYLES.get(name, ("0.45", marker))[0]
-        if not color.startswith("0."):
-            color = "0.45"
+    if info["oracle"] and not color.startswith("0."):
+        color = "0.45"  # a bound is grey
     linestyle = "--" if info["oracle"] else (":" if info["reconstruction"] else "-")
     return {"color": color, "marker": marker, "linestyle": linestyle}
