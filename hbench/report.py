@@ -8,11 +8,18 @@ graphs; ``reproduce.csv`` (and ``investigation.csv``) the comparison with the pa
 
 Output (default ``RUN_DIR/report/``, or a fresh ``RUN_DIR/report-<time>/`` if that exists): a
 self-contained ``report.html`` (figures embedded as base64 PNG data URIs, no external resources),
-the figures as PNG and PDF, and the tables as Markdown and LaTeX (booktabs): ``fitness``,
-``bias`` (the contract's aggregation), ``ranking`` (mean rank of fitness per cell among the blind
-methods; oracles are bounds, not ranked), ``timing`` (seconds per run), and, when some run is
-not ``ok``, ``failures`` (:func:`failure_table`: per method and cell, how many runs failed or were
-not identifiable, and why). A table or figure with no data is replaced by a one-line note (the
+the figures as PNG (200 dpi) and PDF (TrueType fonts), and the tables. The page opens with the
+headline (:func:`write_summary`: ``summary.{csv,md,tex}`` and ``summary_bias.{csv,md,tex}``,
+:mod:`hbench.summary` and :mod:`hbench.headline`): who wins each cell, with what confidence.
+The other tables, as Markdown and LaTeX (booktabs), the method's label in the ``method``
+column: ``fitness``, ``bias`` (the contract's aggregation), ``structure`` (hit rates of na, nb,
+tau, delay), ``ranking`` (mean rank of fitness per cell among the blind methods; oracles are
+bounds, not ranked), ``timing`` (seconds per run), and, when some run is not ``ok``,
+``failures`` (:func:`failure_table`: per method and cell, how many runs failed or were not
+identifiable, and why). On the page every table scrolls in its own box, columns with no value
+are left out (said under the table), the long tables and the provenance are folded
+(``<details>``), and the provenance is one block: what every job shares, and a table of what
+differs. A table or figure with no data is replaced by a one-line note (the
 Markdown and LaTeX files of an empty table say why it is empty); when no run produced an estimate
 the page says so first. Methods whose class is a reconstruction (``reconstruction = True``) are
 labelled so wherever they appear. When a method of the ``hbench_extensions`` plugin package ran,
@@ -34,6 +41,7 @@ from pathlib import Path
 from typing import Any
 
 from hbench.errors import InputError
+from hbench.style import method_info
 
 #: Names not in the registry that reports may meet (defined by ``hbench reproduce``).
 EXTRA_LABELS = {"wang-lsm-inv": "wang-lsm-inv (LSM + direct inverse)"}
@@ -135,20 +143,6 @@ def load_examples(run_dir: Path) -> list[dict[str, Any]]:
 
 
 # --------------------------------------------------------------------------- labels
-
-
-def method_info(name: str) -> dict[str, Any]:
-    """``{"reconstruction": bool, "oracle": bool}`` from the registry (unknown names: False)."""
-    try:
-        from hbench.plugins import registry
-
-        cls = registry().get("identifiers", name)
-    except Exception:
-        return {"reconstruction": False, "oracle": False}
-    return {
-        "reconstruction": bool(getattr(cls, "reconstruction", False)),
-        "oracle": "truth" in getattr(cls, "needs", frozenset()),
-    }
 
 
 def method_label(name: str) -> str:
@@ -447,16 +441,17 @@ def write_table(
     wrap_last : bool
         Let the last column's text wrap in LaTeX (a ``p`` column; long messages).
     """
-    from hbench.results import tex_escape, to_latex, to_markdown
+    from hbench.results import column_spec, tex_escape, to_latex, to_markdown
 
     lines = [line for line in (note, empty if table.empty else "") if line]
     md = to_markdown(_text_cells(table, _md_text))
     (out / f"{name}.md").write_text("".join(f"{_md_text(line)}\n\n" for line in lines) + md)
-    tex = to_latex(table, caption=f"hbench {name}")  # to_latex escapes the text cells
+    # to_latex escapes the text cells
+    tex = to_latex(table, caption=f"hbench {name}", label=f"tab:hbench-{name}")
     ncols = len(table.columns)
     if wrap_last and ncols:
-        spec = "{" + "l" * ncols + "}"
-        tex = tex.replace(spec, "{" + "l" * (ncols - 1) + r"p{0.4\linewidth}}", 1)
+        spec = column_spec(table)
+        tex = tex.replace("{" + spec + "}", "{" + spec[:-1] + r"p{0.4\linewidth}}", 1)
     if table.empty and empty:
         span = rf"\multicolumn{{{ncols}}}{{p{{0.8\linewidth}}}}{{{tex_escape(empty)}}} \\"
         tex = tex.replace("\\bottomrule", span + "\n\\bottomrule", 1)
@@ -470,7 +465,7 @@ def write_table(
 
 CSS = """
 body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:2em auto;
-max-width:1150px;color:#222;line-height:1.4;padding:0 1em}
+max-width:1250px;color:#222;line-height:1.4;padding:0 1em}
 h1{font-size:1.6em}
 h2{font-size:1.25em;border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:2em}
 h3{font-size:1.05em}
@@ -484,6 +479,17 @@ pre{background:#f6f6f6;padding:.8em;overflow-x:auto;font-size:.78em;max-height:3
 .note{background:#fff8e0;border-left:4px solid #e0b000;padding:.4em .8em}
 .beyond{font-family:ui-monospace,Menlo,Consolas,monospace;font-size:.8em}
 #table-failures td:last-child{white-space:normal;text-align:left;min-width:24em}
+.scroll{max-width:100%;overflow-x:auto}
+details{margin:.4em 0 1em}summary{cursor:pointer;color:#245}
+.hidden-cols{font-size:.8em;color:#666;margin-top:-.8em}
+table.headline td{vertical-align:top;line-height:1.25}
+table.headline tbody th{text-align:left;background:none;border-bottom:none;
+border-top:1px solid #ddd;white-space:normal;min-width:7em;max-width:11em}
+table.headline td{padding:.25em .4em}
+table.headline .paper{color:#666;font-size:.9em}
+table.headline .diff{color:#345;font-size:.9em}
+table.headline td.win{background:#eef6ee}
+table.headline tr.bound th,table.headline tr.bound td{color:#777}
 """
 
 
@@ -491,10 +497,28 @@ def _esc(x: Any) -> str:
     return html.escape(str(x), quote=True)
 
 
-def html_table(table: Any, floatfmt: str = ".4g", table_id: str | None = None) -> str:
-    cols = list(table.columns)
+def _empty_columns(table: Any) -> list[str]:
+    """Columns whose every cell is empty (nan, None or blank text)."""
+    out = []
+    for c in table.columns:
+        col = table[c]
+        if len(col) and all(
+            v is None
+            or (isinstance(v, str) and not v.strip())
+            or (isinstance(v, float) and math.isnan(v))
+            for v in col
+        ):
+            out.append(c)
+    return out
 
+
+def html_table(table: Any, floatfmt: str = ".4g", table_id: str | None = None) -> str:
+    """``table`` as HTML in a horizontally scrolling box; columns with no value are left out
+    (said under the table)."""
     from hbench.results import format_number
+
+    hidden = _empty_columns(table)
+    cols = [c for c in table.columns if c not in hidden]
 
     def fmt(v: Any) -> str:
         number = format_number(v, floatfmt)
@@ -506,13 +530,46 @@ def html_table(table: Any, floatfmt: str = ".4g", table_id: str | None = None) -
         "<tr>" + "".join(f"<td>{_esc(fmt(row[c]))}</td>" for c in cols) + "</tr>"
         for _, row in table.iterrows()
     )
-    return f"<table{ident}><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+    note = (
+        f'<p class="hidden-cols">Empty columns not shown: {_esc(", ".join(map(str, hidden)))}.</p>'
+        if hidden
+        else ""
+    )
+    return (
+        f'<div class="scroll"><table{ident}><thead><tr>{head}</tr></thead>'
+        f"<tbody>{body}</tbody></table></div>{note}"
+    )
+
+
+def _fold(summary: str, inner: str, open_: bool = False) -> str:
+    """``inner`` folded in a ``<details>`` element titled ``summary``."""
+    return f"<details{' open' if open_ else ''}><summary>{_esc(summary)}</summary>{inner}</details>"
+
+
+#: Screen pixels per inch of a figure on the page (its text at 8 pt shows as ~14 px).
+SCREEN_PPI = 130
+
+
+def png_size(png: bytes) -> tuple[int, int, float]:
+    """``(width, height, dots per inch)`` from a PNG's IHDR and pHYs chunks (dpi 0 if unset)."""
+    import struct
+
+    width, height = struct.unpack(">II", png[16:24])
+    at = png.find(b"pHYs")
+    dpi = 0.0
+    if at > 0:
+        ppx, _, unit = struct.unpack(">IIB", png[at + 4 : at + 13])
+        dpi = ppx * 0.0254 if unit == 1 else 0.0
+    return width, height, dpi
 
 
 def html_figure(fig_id: str, png: bytes, caption: str) -> str:
+    """A figure with its PNG embedded, shown at :data:`SCREEN_PPI` of its print size."""
     data = base64.b64encode(png).decode("ascii")
+    width, _, dpi = png_size(png)
+    shown = f' width="{round(width * SCREEN_PPI / dpi)}"' if dpi else ""
     return (
-        f'<figure id="{_esc(fig_id)}"><img src="data:image/png;base64,{data}" '
+        f'<figure id="{_esc(fig_id)}"><img src="data:image/png;base64,{data}"{shown} '
         f'alt="{_esc(caption)}"><figcaption>{_esc(caption)}</figcaption></figure>'
     )
 
@@ -544,36 +601,63 @@ def _pick_examples(examples: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]
     return panels
 
 
+def _flatten(d: Any, prefix: str = "") -> dict[str, Any]:
+    """A nested mapping as ``{"a.b.c": leaf}`` (lists are leaves)."""
+    if not isinstance(d, Mapping):
+        return {prefix: d}
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        out.update(_flatten(v, f"{prefix}.{k}" if prefix else str(k)))
+    return out
+
+
+def provenance_block(prov: Sequence[tuple[Path, Mapping[str, Any]]]) -> tuple[dict, dict]:
+    """``(common, differing)``: the provenance entries every file shares (flattened keys), and
+    per key that differs, its value in each file (``created`` is left out: it always differs)."""
+    flat = [_flatten({k: v for k, v in d.items() if k != "created"}) for _, d in prov]
+    keys = list(dict.fromkeys(k for f in flat for k in f))
+    common: dict[str, Any] = {}
+    differing: dict[str, list[Any]] = {}
+    for k in keys:
+        values = [f.get(k) for f in flat]
+        texts = {json.dumps(v, sort_keys=True, default=str) for v in values}
+        if len(texts) == 1:
+            common[k] = values[0]
+        else:
+            differing[k] = values
+    return common, differing
+
+
 def _provenance_html(prov: Sequence[tuple[Path, Mapping[str, Any]]], run_dir: Path) -> str:
+    """One provenance block: what every job shares, then a table of what differs per file."""
     if not prov:
         return '<p class="note">No provenance.json found under the folder.</p>'
     import pandas as pd
 
-    summary = pd.DataFrame(
-        [
-            {
-                "file": str(p.relative_to(run_dir)),
-                "git revision": d.get("git_revision", "?"),
-                "hbench": d.get("hbench_version", "?"),
-                "python": d.get("python", "?"),
-                "created": d.get("created", "?"),
+    common, differing = provenance_block(prov)
+    created = sorted(str(d.get("created", "?")) for _, d in prov)
+    parts = [
+        f"<p>{len(prov)} provenance file(s), created {_esc(created[0])}"
+        + (f" to {_esc(created[-1])}" if len(created) > 1 else "")
+        + ". Shared by all:</p>",
+        "<details><summary>shared provenance (" + str(len(common)) + " entries)</summary>"
+        f"<pre>{_esc(json.dumps(common, indent=2, default=str))}</pre></details>",
+    ]
+    if differing:
+        table = pd.DataFrame(
+            {"file": [str(p.relative_to(run_dir)) for p, _ in prov]}
+            | {
+                k: [json.dumps(v, default=str) if isinstance(v, list | dict) else v for v in vs]
+                for k, vs in differing.items()
             }
-            for p, d in prov
-        ]
-    )
-    parts = [html_table(summary, table_id="provenance-files")]
-    versions = {json.dumps(d.get("versions", {}), sort_keys=True) for _, d in prov}
-    parts.append(f"<h3>Package versions</h3><pre>{_esc(chr(10).join(sorted(versions)))}</pre>")
-    shown = prov[:3]
-    for p, d in shown:
-        block = {k: d.get(k) for k in ("git_revision", "platform", "config", "seeds")}
-        parts.append(
-            f"<h3>{_esc(p.relative_to(run_dir))}</h3>"
-            f"<pre>{_esc(json.dumps(block, indent=2, default=str))}</pre>"
         )
-    if len(prov) > len(shown):
+        parts.append("<p>What differs between the files:</p>")
         parts.append(
-            f"<p>... and {len(prov) - len(shown)} more provenance files (same schema).</p>"
+            _fold(
+                f"{len(differing)} differing entries over {len(prov)} files",
+                html_table(table, table_id="provenance-differs"),
+                open_=len(prov) <= 12,
+            )
         )
     return "\n".join(parts)
 
@@ -640,6 +724,75 @@ def _reproduction_html(run_dir: Path, out: Path) -> str:
     return "\n".join(parts)
 
 
+def write_summary(out: Path, run_dir: Path, rows: Any) -> tuple[Any, Any]:
+    """Write the headline ``summary.{csv,md,tex}`` and ``summary_bias.{csv,md,tex}`` into
+    ``out`` (:mod:`hbench.summary`, rendered by :mod:`hbench.headline`); the paper's values come
+    from ``RUN_DIR/reproduce.csv`` where present. Returns the two tables."""
+    import pandas as pd
+
+    from hbench import headline, summary
+    from hbench.results import to_markdown
+
+    def bound(m: str) -> bool:
+        return bool(method_info(m)["oracle"])
+
+    paper_fit = paper_par = None
+    csv = run_dir / "reproduce.csv"
+    if csv.is_file():
+        paper_fit, paper_par = summary.paper_values(pd.read_csv(csv))
+    head = summary.summary(rows, bound, paper_fit)
+    bias = summary.bias_summary(rows, bound, paper_par)
+    head.to_csv(out / "summary.csv", index=False, float_format="%.10g")
+    (out / "summary.md").write_text(headline.fitness_markdown(head, method_label))
+    (out / "summary.tex").write_text(headline.fitness_latex(head, method_label))
+    bias.to_csv(out / "summary_bias.csv", index=False, float_format="%.10g")
+    (out / "summary_bias.md").write_text(to_markdown(_text_cells(bias, _md_text), ".4g"))
+    (out / "summary_bias.tex").write_text(headline.bias_latex(bias, method_label))
+    return head, bias
+
+
+def _with_summary(stats: Any, table: Any, columns: dict[str, Any], by: Sequence[str] = ()) -> Any:
+    """:func:`cell_stats`' ``stats`` with ``columns`` (name -> Series over ``table``) of a
+    headline table, matched by method, cell (and ``by``)."""
+    keys = ["method", "nonlinearity", "p", "delay", "_s2", "_st", *by]
+    t = table.assign(
+        _s2=table["sigma2"].astype(float).fillna(-1.0),
+        _st=table["snr_target"].astype(float).fillna(-1.0),
+        **columns,
+    )[[*keys, *columns]]
+    return stats.merge(t, on=keys, how="left")
+
+
+def _headline_html(head: Any, bias: Any) -> str:
+    """The section that opens the report: who wins each cell, with what confidence."""
+    from hbench import headline, summary
+
+    parts = ['<section id="headline"><h2>Headline: who wins, with what confidence</h2>']
+    if head.empty:
+        parts.append('<p class="note">No ok run has a fitness: no headline table.</p>')
+    else:
+        parts += [
+            f"<p>Fitness F (%): mean ± half-width of its 95 % interval. {_esc(summary.METHOD_NOTE)}"
+            " Bold: the winner of the column where its lead is significant; <i>n.s.</i>: the "
+            "best mean's lead is not significant; <i>tie</i>: not significantly worse than the "
+            "best. Oracle bounds (grey) are not compared.</p>",
+            '<div class="scroll">'
+            + headline.fitness_html(head, method_label, "table-summary")
+            + "</div>",
+        ]
+    if not bias.empty:
+        parts.append(
+            _fold(
+                "Bias ± 95 % interval and RMSE of each parameter (blind methods)",
+                '<div class="scroll">'
+                + headline.bias_html(bias, method_label, "table-summary-bias")
+                + "</div>",
+            )
+        )
+    parts.append("</section>")
+    return "\n".join(parts)
+
+
 def _empty_reasons(none_ok: bool, status_line: str) -> dict[str, str]:
     """Why each statistics table of the report may be empty (said where the table would be)."""
     if none_ok:
@@ -647,10 +800,11 @@ def _empty_reasons(none_ok: bool, status_line: str) -> dict[str, str]:
             f"No run produced an estimate (run status: {status_line}): this table is empty; "
             "why, per method and cell: the failures table."
         )
-        return dict.fromkeys(("fitness", "bias", "ranking", "timing"), why)
+        return dict.fromkeys(("fitness", "bias", "structure", "ranking", "timing"), why)
     return {
         "fitness": "No ok run has a fitness: this table is empty.",
         "bias": "No ok run has parameter estimates (a1, a2, ..., b2, ...): this table is empty.",
+        "structure": "No ok run has structure estimates (na, nb, tau, delay): this table is empty.",
         "ranking": "No blind method has a fitness in any cell: nothing to rank (oracles are "
         "bounds, not ranked).",
         "timing": "No ok run has a time: this table is empty.",
@@ -678,16 +832,22 @@ def build_report(
     rows: Any = None,
     jobs: int = 1,
     extra_figures: Sequence[Any] = (),
+    spread: str = "ci",
 ) -> Path:
     """Write the report of ``run_dir`` into ``out``; returns the path of ``report.html``.
+
+    ``spread`` is what the fitness figure's error bars show: ``"ci"`` the 95 % interval of the
+    mean, ``"std"`` one standard deviation over the runs.
 
     ``rows`` (already in memory) skips reading ``rows.parquet``; ``jobs > 1`` renders the
     figures in forked worker processes; ``extra_figures`` (:data:`hbench.figures.FigureSpec`)
     are rendered in the same batch (the reproduction's Figures 4 and 5).
     """
     from hbench import figures, report_beyond
-    from hbench.results import aggregate, display_table, new_output_dir
+    from hbench.results import aggregate, display_table, new_output_dir, structure
 
+    if spread not in figures.SPREADS:  # before any work
+        raise InputError(f"--spread must be one of {', '.join(figures.SPREADS)}, got {spread!r}")
     run_dir = Path(run_dir)
     if rows is None:
         rows, files = load_rows(run_dir)
@@ -701,17 +861,36 @@ def build_report(
     out.mkdir(parents=True, exist_ok=True)
 
     stats = cell_stats(rows)
+    head, head_bias = write_summary(out, run_dir, rows)
+    # the interval's half-width and the paper's values for the figures
+    half = (head["fitness_ci_high"] - head["fitness_ci_low"]) / 2
+    stats["fitness"] = _with_summary(
+        stats["fitness"], head, {"fitness_ci": half, "paper": head["paper"]}
+    )
+    stats["bias"] = _with_summary(
+        stats["bias"],
+        head_bias,
+        {"paper_bias": head_bias["paper_bias"]},
+        by=["parameter"],
+    )
     # as the renderings show them: SNR cells told apart (column snr_target), sorted by level
     fitness_table, bias_table = (display_table(t) for t in aggregate(rows, level=True))
+    structure_table = display_table(structure(rows, level=True))
     ranking = stats["ranking"]
     timing = stats["timing"].rename(columns={"mean": "seconds_mean", "std": "seconds_std"})
     failures = failure_table(rows)
-    for frame in (fitness_table, bias_table, ranking, timing, failures):
-        frame.insert(0, "label", frame["method"].map(method_label))
+    for frame in (fitness_table, bias_table, structure_table, ranking, timing, failures):
+        frame["method"] = frame["method"].map(method_label)  # the label in place of the name
     counts = status_counts(rows)
     status_line = ", ".join(f"{k} {v}" for k, v in counts.items())
     none_ok = counts.get("ok", 0) == 0
-    tables = {"fitness": fitness_table, "bias": bias_table, "ranking": ranking, "timing": timing}
+    tables = {
+        "fitness": fitness_table,
+        "bias": bias_table,
+        "structure": structure_table,
+        "ranking": ranking,
+        "timing": timing,
+    }
     if len(failures):
         tables["failures"] = failures
     empty = _empty_reasons(none_ok, status_line)
@@ -734,9 +913,15 @@ def build_report(
         (
             stats["fitness"]["fitness_mean"].notna().any(),
             "fig-fitness-snr",
-            (out / "fitness_snr", "fitness_vs_snr", (stats["fitness"], method_label), {}),
-            "Fitness (mean ± one std over runs) against the mean SNR of each cell, per method "
-            "(noise-free cells, with infinite SNR, are not drawn).",
+            (
+                out / "fitness_snr",
+                "fitness_vs_snr",
+                (stats["fitness"], method_label),
+                {"spread": spread},
+            ),
+            f"Fitness (mean, error bars {figures.SPREADS[spread]}) against the mean SNR of "
+            "each cell, per method; the paper's values, where published, as hollow markers in "
+            "the method's colour (noise-free cells, with infinite SNR, are not drawn).",
             missing("fig-fitness-snr", "no fitness against SNR to draw", "No ok run has a fitness"),
         ),
         (
@@ -835,32 +1020,39 @@ def build_report(
     table_titles = {
         "ranking": "Ranking (mean rank of fitness per cell)",
         "timing": "Time per method",
+        "structure": "Structure hit rate (share of runs that found the true na, nb, tau, delay)",
         "fitness": "Fitness per cell (%)",
         "bias": "Bias per parameter",
     }
+    folded = {"fitness", "bias", "structure"}  # long tables: folded, the headline sums them up
     table_html = []
     for name, title in table_titles.items():
         table_html.append(f"<h3>{_esc(title)}</h3>")
         if tables[name].empty:
             table_html.append(f'<p class="note" id="no-table-{name}">{_esc(empty[name])}</p>')
-        else:
-            fmt = ".3g" if name in ("ranking", "timing") else ".4g"
-            table_html.append(html_table(tables[name], floatfmt=fmt, table_id=f"table-{name}"))
+            continue
+        fmt = ".3g" if name in ("ranking", "timing", "structure") else ".4g"
+        block = html_table(tables[name], floatfmt=fmt, table_id=f"table-{name}")
+        if name in folded:
+            block = _fold(f"{len(tables[name])} rows", block)
+        table_html.append(block)
     prov = load_provenance(run_dir)
     page = [
         "<!DOCTYPE html>",
         '<html lang="en"><head><meta charset="utf-8">',
+        '<meta name="viewport" content="width=device-width, initial-scale=1">',
         "<title>hbench report</title>",
         f"<style>{CSS}</style></head><body>",
         "<h1>hbench report</h1>",
         *intro,
+        _headline_html(head, head_bias),
         _reproduction_html(run_dir, out),
         '<section id="figures"><h2>Figures</h2>',
         *figs,
         "</section>",
         '<section id="tables"><h2>Tables</h2>',
         "<p>Also written as Markdown and LaTeX (booktabs) files beside this page: "
-        + _esc(", ".join(f"{n}.md, {n}.tex" for n in tables))
+        + _esc(", ".join(f"{n}.md, {n}.tex" for n in ("summary", "summary_bias", *tables)))
         + ".</p>",
         *table_html,
         "</section>",
@@ -881,7 +1073,9 @@ def _cmd(args: argparse.Namespace) -> int:
     if args.out:  # before any work: a folder one can write in
         check_output(args.out, "--out", folder=True)
     jobs = max(1, min(2, len(os.sched_getaffinity(0))))
-    path = build_report(Path(args.run_dir), Path(args.out) if args.out else None, jobs=jobs)
+    path = build_report(
+        Path(args.run_dir), Path(args.out) if args.out else None, jobs=jobs, spread=args.spread
+    )
     print(path)
     return 0
 
@@ -897,5 +1091,12 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     )
     p.add_argument("run_dir", metavar="RUN_DIR", help="a sweep's or a reproduction's folder")
     p.add_argument("--out", default=None, help="output folder (default RUN_DIR/report/)")
+    p.add_argument(
+        "--spread",
+        choices=("ci", "std"),
+        default="ci",
+        help="error bars of the fitness figure: the 95 %% interval of the mean (default) or "
+        "one std over the runs",
+    )
     p.set_defaults(func=_cmd)
     return p

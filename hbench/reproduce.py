@@ -1514,7 +1514,7 @@ def reproduce(
     def warm_up() -> None:  # the figures need matplotlib: import it while the workers compute
         from hbench import figures
 
-        figures.pyplot()
+        figures.warm_up()
 
     tasks = level_tasks(config, runs, seed, structure, ALL_METHODS)
     results = run_levels(tasks, jobs, progress, while_waiting=warm_up if report else None)

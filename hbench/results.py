@@ -5,11 +5,12 @@ fitness_mean, fitness_std`` (fitness in %, the paper's gain scaling). ``bias.csv
 (method, cell, parameter) with ``true, mean, bias, std, n``. ``structure.csv`` (hbench's own, not
 the contract's): one row per (method, cell, quantity) for the structure quantities na, nb, tau and
 delay with ``snr_mean, true, hit_rate, n``. For cells given by a target SNR the ``sigma2`` column
-is empty (nan): the level varies by run; the tidy rows keep ``snr_target``.
+is empty (nan): the level varies by run, and a column ``snr_target`` after ``sigma2`` holds the
+target.
 
-The Markdown, LaTeX and HTML renderings of these tables are not the contract: they show
-:func:`display_table` (a column ``snr_target`` tells SNR cells apart, rows sorted by noise level),
-empty numbers as blank cells, and every LaTeX text goes through :func:`tex_escape`.
+Each table's CSV, Markdown and LaTeX files show :func:`display_table`: the same columns in the
+same order, rows sorted by noise level; the renderings show empty numbers as blank cells, and
+every LaTeX text goes through :func:`tex_escape` (headers of :data:`TEX_HEADERS` as math).
 """
 
 from __future__ import annotations
@@ -295,43 +296,114 @@ def to_markdown(table: pd.DataFrame, floatfmt: str = ".4g") -> str:
     return "\n".join(lines) + "\n"
 
 
-def to_latex(table: pd.DataFrame, caption: str = "", floatfmt: str = ".4g") -> str:
-    """A booktabs LaTeX table.
+#: LaTeX headers of the tables' columns (math where the paper uses a symbol); other headers
+#: are escaped text.
+TEX_HEADERS = {
+    "method": "Method",
+    "nonlinearity": "Nonlinearity",
+    "p": "$p$",
+    "delay": "Delay",
+    "sigma2": r"$\sigma^2$",
+    "snr_target": r"SNR$_\mathrm{target}$",
+    "snr_mean": r"$\overline{\mathrm{SNR}}$",
+    "n": "$n$",
+    "fitness_mean": r"$\bar F$ [\%]",
+    "fitness_std": r"$s_F$ [\%]",
+    "parameter": "Parameter",
+    "quantity": "Quantity",
+    "true": "True",
+    "mean": "Mean",
+    "bias": "Bias",
+    "std": "Std",
+    "hit_rate": "Hit rate",
+    "mean_rank": "Mean rank",
+    "mean_fitness": r"Mean $F$ over cells [\%]",
+    "cells": "Cells",
+    "wins": "Wins",
+    "seconds_mean": "Time [s]",
+    "seconds_std": r"$s_\mathrm{time}$ [s]",
+}
+#: Text cells shown as math symbols (the structure quantities); ``a1, b2, ...`` likewise.
+_TEX_SYMBOLS = {"na": "$n_a$", "nb": "$n_b$", "tau": r"$\tau$", "delay": r"$\tau + m p$"}
+_PARAM = re.compile(r"([ab])(\d+)")
+
+
+def column_spec(table: pd.DataFrame) -> str:
+    """The tabular's column types: ``r`` for numeric columns (right-aligned: with one format
+    per column the decimal points align), ``l`` for text."""
+    return "".join(
+        "r" if pd.api.types.is_numeric_dtype(table[c].dtype) and table[c].dtype != bool else "l"
+        for c in table.columns
+    )
+
+
+def tex_number(text: str, column: str = "") -> str:
+    """A formatted number in LaTeX: ``1.102e-09 -> $1.102 \\times 10^{-9}$``, a minus sign in
+    math, an infinite SNR as ``noise-free``."""
+    if text in ("inf", "-inf"):
+        if column.startswith("snr") and text == "inf":
+            return "noise-free"
+        return r"$\infty$" if text == "inf" else r"$-\infty$"
+    mant, e, exp = text.partition("e")
+    body = mant.lstrip("-") + (rf" \times 10^{{{int(exp)}}}" if e else "")
+    sign = "-" if mant.startswith("-") else ""
+    return f"${sign}{body}$" if (sign or e) else body
+
+
+def _tex_text(v: Any) -> str:
+    text = str(v)
+    if text in _TEX_SYMBOLS:
+        return _TEX_SYMBOLS[text]
+    m = _PARAM.fullmatch(text)
+    return f"${m.group(1)}_{{{m.group(2)}}}$" if m else tex_escape(v)
+
+
+def _tex_label(text: str) -> str:
+    """A ``\\label`` key from a caption: ``tab:`` and its words in lower case, by hyphens."""
+    return "tab:" + "-".join(re.findall(r"[a-z0-9]+", text.lower()))[:60]
+
+
+def to_latex(table: pd.DataFrame, caption: str = "", floatfmt: str = ".4g", label: str = "") -> str:
+    """A booktabs LaTeX table ready for a paper.
 
     Parameters
     ----------
     table : DataFrame
-        The table; its headers and text cells are plain text (:func:`tex_escape` escapes them).
+        The table; its headers and text cells are plain text (:func:`tex_escape` escapes them;
+        headers in :data:`TEX_HEADERS` and parameter names ``a1, b2, ...`` are set as math).
     caption : str
         Plain text (escaped too); none when empty.
     floatfmt : str
-        Format of float cells; an empty number (nan) is a blank cell.
+        Format of float cells; an empty number (nan) is a blank cell, exponents as
+        ``\\times 10^{k}`` (:func:`tex_number`), an infinite SNR ``noise-free``.
+    label : str
+        The ``\\label`` key (default: ``tab:`` and the caption's words).
 
     Returns
     -------
     str
-        A ``table`` environment with a ``tabular`` of left-aligned columns.
+        A ``table`` environment: caption and label above a ``tabular`` whose numeric columns
+        are right-aligned (:func:`column_spec`).
     """
     cols = list(table.columns)
 
-    def fmt(v: Any) -> str:
+    def fmt(v: Any, col: str) -> str:
         number = format_number(v, floatfmt)
-        return tex_escape(v) if number is None else number
+        return _tex_text(v) if number is None else (tex_number(number, col) if number else "")
 
-    out = [
-        r"\begin{table}[ht]",
-        r"\centering",
-        r"\begin{tabular}{" + "l" * len(cols) + "}",
+    out = [r"\begin{table}[ht]", r"\centering"]
+    if caption:
+        out.append(r"\caption{" + tex_escape(caption) + "}")
+    out.append(r"\label{" + (label or _tex_label(caption or "hbench table")) + "}")
+    out += [
+        r"\begin{tabular}{" + column_spec(table) + "}",
         r"\toprule",
-        " & ".join(tex_escape(c) for c in cols) + r" \\",
+        " & ".join(TEX_HEADERS.get(str(c), tex_escape(c)) for c in cols) + r" \\",
         r"\midrule",
     ]
     for row in table.itertuples(index=False, name=None):
-        out.append(" & ".join(fmt(v) for v in row) + r" \\")
-    out += [r"\bottomrule", r"\end{tabular}"]
-    if caption:
-        out.append(r"\caption{" + tex_escape(caption) + "}")
-    out.append(r"\end{table}")
+        out.append(" & ".join(fmt(v, str(c)) for v, c in zip(row, cols, strict=True)) + r" \\")
+    out += [r"\bottomrule", r"\end{tabular}", r"\end{table}"]
     return "\n".join(out) + "\n"
 
 
@@ -349,8 +421,9 @@ def write_tables(rows: pd.DataFrame, out: Path) -> dict[str, Path]:
     -------
     dict of str -> Path
         ``{"fitness.csv": path, ...}``: the CSV files (the contract's columns, and
-        :data:`STRUCTURE_COLUMNS`). Beside each, ``.md`` and ``.tex`` show
-        :func:`display_table` (SNR cells told apart, rows sorted by level).
+        :data:`STRUCTURE_COLUMNS`). Each CSV file and its ``.md`` and ``.tex`` beside hold
+        :func:`display_table`: the same columns in the same order (a column ``snr_target``
+        after ``sigma2`` when a cell is given by a target SNR), rows sorted by level.
     """
     out.mkdir(parents=True, exist_ok=True)
     fitness, bias = aggregate(rows, level=True)
@@ -361,11 +434,11 @@ def write_tables(rows: pd.DataFrame, out: Path) -> dict[str, Path]:
         ("structure", structure(rows, level=True)),
     ):
         paths[f"{name}.csv"] = out / f"{name}.csv"
-        csv = table.drop(columns=[LEVEL])
-        csv.to_csv(paths[f"{name}.csv"], index=False, float_format="%.10g")
-        shown = display_table(table)
+        shown = display_table(table)  # the CSV, Markdown and LaTeX files: same columns, order
+        shown.to_csv(paths[f"{name}.csv"], index=False, float_format="%.10g")
         (out / f"{name}.md").write_text(to_markdown(shown))
-        (out / f"{name}.tex").write_text(to_latex(shown, caption=f"hbench {name}"))
+        tex = to_latex(shown, caption=f"hbench {name}", label=f"tab:hbench-{name}")
+        (out / f"{name}.tex").write_text(tex)
     return paths
 
 

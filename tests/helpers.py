@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import contextlib
 import copy
+import shutil
+import subprocess
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -93,3 +96,26 @@ def registered_methods(plugin_name: str, *classes: type[Identifier]) -> Iterator
         yield
     finally:
         unregister_module(plugin)
+
+
+#: Why the LaTeX tests skip where pdflatex is missing (CI installs it from Debian).
+NO_PDFLATEX = "needs pdflatex with booktabs (Debian: texlive-latex-base, texlive-latex-extra)"
+HAS_PDFLATEX = shutil.which("pdflatex") is not None
+
+
+def compile_tex(folder: Path, files: list[Path]) -> subprocess.CompletedProcess[str]:
+    """Compile ``files`` (LaTeX tables under ``folder``), each input into one article with
+    booktabs, by pdflatex in ``folder``; the finished process (``returncode`` 0: compiled)."""
+    doc = folder / "doc.tex"
+    doc.write_text(
+        "\\documentclass{article}\n\\usepackage{booktabs}\n\\begin{document}\n"
+        + "".join(f"\\input{{{f.relative_to(folder).as_posix()}}}\n" for f in files)
+        + "\\end{document}\n"
+    )
+    return subprocess.run(
+        ["pdflatex", "-interaction=nonstopmode", "-halt-on-error", doc.name],
+        cwd=folder,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )

@@ -170,7 +170,8 @@ def test_write_tables_adds_structure_and_keeps_fitness_bias(tmp_path: Path) -> N
     for ext in ("csv", "md", "tex"):
         assert (tmp_path / f"structure.{ext}").stat().st_size > 0
     back = pd.read_csv(tmp_path / "structure.csv")
-    assert list(back.columns) == STRUCTURE_COLUMNS and len(back) == 16
+    # SNR cells: snr_target after sigma2, as in structure.md and .tex
+    assert [c for c in back.columns if c != "snr_target"] == STRUCTURE_COLUMNS and len(back) == 16
     fitness = pd.read_csv(tmp_path / "fitness.csv")
     assert len(fitness) == 4 and fitness["sigma2"].isna().sum() == 3  # three SNR cells
     assert "level" not in fitness.columns  # the contract's columns only
@@ -334,7 +335,7 @@ def delay_sweep(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def test_delay_sweep_structure_csv(delay_sweep: Path) -> None:
     table = pd.read_csv(delay_sweep / "structure.csv")
-    assert list(table.columns) == STRUCTURE_COLUMNS
+    assert [c for c in table.columns if c != "snr_target"] == STRUCTURE_COLUMNS  # SNR cells
     assert len(table) == 2 * len(DELAYS) * 4  # methods x delays x quantities
     assert set(table["method"]) == {"wang-lsm", "wang-delay"}
     assert table["sigma2"].isna().all() and (table["n"] == 3).all()

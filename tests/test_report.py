@@ -142,15 +142,21 @@ def test_report_tables_provenance_and_labels(built, sweep_dir):
         "table-timing",
         "table-fitness",
         "table-bias",
+        "table-structure",
+        "table-summary",
         "provenance",
-        "provenance-files",
+        "provenance-differs",
     } <= ids
     text = "".join(page.text)
     assert "sun-liu-sano (reconstruction)" in text
     assert "oracle (oracle bound)" in text
     prov = "".join(page.section_text["provenance"])
     assert results.git_revision() in prov
-    assert '"sigma2": 0.0001' in prov and "numpy" in prov
+    assert "numpy" in prov
+    # one block: what the jobs share once, what differs (here the level) per file
+    assert prov.count('"versions.numpy"') == 1 and prov.count(results.git_revision()) == 1
+    differs = "".join(page.section_text["provenance-differs"])
+    assert "config.sigma2" in differs and "0.0001" in differs and "0.001" in differs
     fitness = "".join(page.section_text["table-fitness"])
     assert "wang-lsm" in fitness and "backlash" in fitness
     stats = report.cell_stats(report.load_rows(sweep_dir[0])[0])
@@ -164,7 +170,8 @@ def test_report_tables_provenance_and_labels(built, sweep_dir):
         tex = (out / f"{name}.tex").read_text()
         assert r"\toprule" in tex and r"\midrule" in tex and r"\bottomrule" in tex
         md = (out / f"{name}.md").read_text()
-        assert md.startswith("| label |") and "|---|" in md
+        # the method's label in place of its name: one column, no duplicate
+        assert md.startswith("| method |") and "| label |" not in md and "|---|" in md
     for stem in ("fitness_snr", "bias_std_snr", "time", "ranking"):
         assert (out / f"{stem}.pdf").read_bytes()[:5] == b"%PDF-"
         assert (out / f"{stem}.png").stat().st_size > 3000

@@ -14,7 +14,7 @@ import pytest
 from hbench import cli
 from hbench import reproduce as rp
 from hbench.runner import TIDY_COLUMNS
-from tests.helpers import BIAS_COLUMNS, FITNESS_COLUMNS
+from tests.helpers import BIAS_COLUMNS, FITNESS_COLUMNS, HAS_PDFLATEX, NO_PDFLATEX, compile_tex
 
 ROOT = Path(__file__).resolve().parents[1]
 CONTRACT_COLUMNS = [
@@ -444,3 +444,13 @@ def test_investigate_writes_one_row_per_alternative(tmp_path):
     assert list(inv["alternative"]) == [a.label for a in rp.alternatives()]
     assert {"mean_abs_z_before", "mean_abs_z_after", "T5_after", "cells_closer"} <= set(inv)
     assert (d / "investigation.md").read_text().startswith("# Investigation")
+
+
+@pytest.mark.skipif(not HAS_PDFLATEX, reason=NO_PDFLATEX)
+def test_every_latex_table_of_the_reproduction_compiles(reproduced):
+    """Tables 1, 2, 4, 5, the aggregated tables and the report's (the headline summary too)."""
+    _, folders, _, _ = reproduced
+    files = sorted(folders[0].rglob("*.tex"))
+    assert {"table5.tex", "summary.tex", "summary_bias.tex"} <= {f.name for f in files}
+    done = compile_tex(folders[0], files)
+    assert done.returncode == 0, done.stdout[-3000:]

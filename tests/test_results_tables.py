@@ -12,8 +12,6 @@ from __future__ import annotations
 import html
 import math
 import re
-import shutil
-import subprocess
 import threading
 from datetime import UTC, datetime
 from pathlib import Path
@@ -25,6 +23,7 @@ import pytest
 
 from hbench import report, results
 from hbench.schema import TIDY_COLUMNS
+from tests.helpers import HAS_PDFLATEX, NO_PDFLATEX, compile_tex
 
 #: Target SNRs in an order where a text sort (2, 20, 5) and the old level sort (20, 5, 2) differ
 #: from the numeric one.
@@ -95,7 +94,8 @@ def read_tex(path: Path) -> pd.DataFrame:
     body = path.read_text().split(r"\toprule", 1)[1].split(r"\bottomrule", 1)[0]
     lines = [ln.strip().removesuffix(r"\\").strip() for ln in body.splitlines()]
     cells = [[c.strip() for c in ln.split(" & ")] for ln in lines if ln and ln != r"\midrule"]
-    header = [c.replace(r"\_", "_") for c in cells[0]]
+    names = {tex: name for name, tex in results.TEX_HEADERS.items()}
+    header = [names.get(c, c.replace(r"\_", "_")) for c in cells[0]]
     return pd.DataFrame(cells[1:], columns=header)
 
 
@@ -150,18 +150,55 @@ def test_sigma2_only_tables_get_no_snr_column(tmp_path: Path) -> None:
     assert list(shown["sigma2"]) == ["0.001", "0.01", "0.02"] * 2
 
 
-def test_csv_files_keep_the_contract(tmp_path: Path) -> None:
-    """The renderings changed, the CSV files did not: the aggregation's rows, in its order."""
+def test_csv_md_and_tex_files_agree(tmp_path: Path) -> None:
+    """Each table's CSV, Markdown and LaTeX files: the same columns in the same order, the same
+    rows in the same order (the contract's columns, and snr_target where SNR cells exist)."""
     rows = level_rows(sigma2s=SIGMA2S)
     paths = results.write_tables(rows, tmp_path)
-    fitness, bias = results.aggregate(rows)
-    expected = {"fitness": fitness, "bias": bias, "structure": results.structure(rows)}
+    fitness, bias = results.aggregate(rows, level=True)
+    expected = {"fitness": fitness, "bias": bias, "structure": results.structure(rows, level=True)}
     for name, table in expected.items():
+        shown = results.display_table(table)
         text = paths[f"{name}.csv"].read_text()
-        assert text == table.to_csv(index=False, float_format="%.10g"), name
-    assert list(fitness.columns) == results.FITNESS_COLUMNS
-    assert list(bias.columns) == results.BIAS_COLUMNS
+        assert text == shown.to_csv(index=False, float_format="%.10g"), name
+        csv = pd.read_csv(paths[f"{name}.csv"])
+        md, tex = read_md(tmp_path / f"{name}.md"), read_tex(tmp_path / f"{name}.tex")
+        assert list(csv.columns) == list(md.columns) == list(tex.columns), name
+        assert list(csv["method"]) == list(md["method"]) == list(tex["method"]), name
+        key = "sigma2" if name == "fitness" else "n"
+        as_text = [f"{v:.4g}" if v == v else "" for v in csv[key]]
+        assert as_text == list(md[key]) == list(tex[key]), name
+    cols = list(pd.read_csv(paths["fitness.csv"]).columns)
+    assert [c for c in cols if c != results.SNR_TARGET] == results.FITNESS_COLUMNS
+    assert cols[cols.index("sigma2") + 1] == results.SNR_TARGET
+    cols = list(pd.read_csv(paths["bias.csv"]).columns)
+    assert [c for c in cols if c != results.SNR_TARGET] == results.BIAS_COLUMNS
     assert pd.read_csv(paths["fitness.csv"])["sigma2"].isna().sum() == 2 * len(SNRS)
+
+
+def test_sigma2_only_csv_has_exactly_the_contract_columns(tmp_path: Path) -> None:
+    paths = results.write_tables(level_rows(snrs=(), sigma2s=(1e-2, 1e-3)), tmp_path)
+    assert list(pd.read_csv(paths["fitness.csv"]).columns) == results.FITNESS_COLUMNS
+    assert list(pd.read_csv(paths["bias.csv"]).columns) == results.BIAS_COLUMNS
+
+
+def test_latex_is_journal_ready() -> None:
+    """Right-aligned numbers, math headers, a label, exponents and infinite SNR in words."""
+    table = pd.DataFrame(
+        {
+            "method": ["wang-lsm", "oracle"],
+            "sigma2": [0.0, 1e-3],
+            "snr_mean": [math.inf, 12.5],
+            "parameter": ["a1", "b2"],
+            "std": [1.102e-09, -0.25],
+        }
+    )
+    tex = results.to_latex(table, caption="hbench bias", label="tab:x")
+    assert r"\begin{tabular}{lrrlr}" in tex and r"\label{tab:x}" in tex
+    assert r"Method & $\sigma^2$ & $\overline{\mathrm{SNR}}$ & Parameter & Std \\" in tex
+    assert r"wang-lsm & 0 & noise-free & $a_{1}$ & $1.102 \times 10^{-9}$ \\" in tex
+    assert r"oracle & 0.001 & 12.5 & $b_{2}$ & $-0.25$ \\" in tex
+    assert "inf" not in tex and "e-09" not in tex
 
 
 def test_display_table_orders_levels_and_keeps_parameter_order() -> None:
@@ -220,7 +257,7 @@ def test_report_tables_escaped_once(tmp_path: Path) -> None:
     assert r"{none\_ok: 100\% \& \textasciicircum{}} \\" in (tmp_path / "e.tex").read_text()
 
 
-@pytest.mark.skipif(shutil.which("pdflatex") is None, reason="needs pdflatex (and booktabs)")
+@pytest.mark.skipif(not HAS_PDFLATEX, reason=NO_PDFLATEX)
 def test_tex_files_compile(tmp_path: Path) -> None:
     rows = level_rows(sigma2s=SIGMA2S)
     results.write_tables(rows, tmp_path)
@@ -229,20 +266,8 @@ def test_tex_files_compile(tmp_path: Path) -> None:
     (tmp_path / "specials.tex").write_text(results.to_latex(table, caption=SPECIALS))
     report.write_table(tmp_path, "empty", table.iloc[:0], note=SPECIALS, empty=SPECIALS)
     files = sorted(tmp_path.rglob("*.tex"))
-    assert len(files) >= 9
-    doc = tmp_path / "doc.tex"
-    doc.write_text(
-        "\\documentclass{article}\n\\usepackage{booktabs}\n\\begin{document}\n"
-        + "".join(f"\\input{{{f.relative_to(tmp_path).as_posix()}}}\n" for f in files)
-        + "\\end{document}\n"
-    )
-    done = subprocess.run(
-        ["pdflatex", "-interaction=nonstopmode", "-halt-on-error", doc.name],
-        cwd=tmp_path,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    assert len(files) >= 9 and tmp_path / "report" / "summary.tex" in files
+    done = compile_tex(tmp_path, files)
     assert done.returncode == 0, done.stdout[-3000:]
 
 

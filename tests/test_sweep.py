@@ -80,8 +80,10 @@ def test_grid_writes_the_contracts_tables(grid: tuple[Path, str, str]) -> None:
     out, stdout, _ = grid
     fitness = pd.read_csv(out / "fitness.csv")
     bias = pd.read_csv(out / "bias.csv")
-    assert list(fitness.columns) == FITNESS_COLUMNS
-    assert list(bias.columns) == BIAS_COLUMNS
+    # the contract's columns, and the target SNR of these SNR cells after sigma2 (as in the
+    # Markdown and LaTeX files)
+    assert list(fitness.columns) == [*FITNESS_COLUMNS[:5], "snr_target", *FITNESS_COLUMNS[5:]]
+    assert list(bias.columns) == [*BIAS_COLUMNS[:5], "snr_target", *BIAS_COLUMNS[5:]]
     assert len(fitness) == 3 * 2 * 2  # one row per (method, p, snr) cell
     assert set(fitness["method"]) == {"wang-lsm", "bai-fu"} and set(fitness["p"]) == {4, 5}
     assert fitness["sigma2"].isna().all()  # SNR cells: the level varies by run

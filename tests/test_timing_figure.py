@@ -17,8 +17,24 @@ def test_time_figure_says_runs_share_their_batchs_time() -> None:
     )
     fig = figures.time_per_method(stats, str)
     try:
-        label = fig.axes[0].get_xlabel()
-        assert "time per run (s)" in label
+        label = fig.get_supxlabel()
+        assert "time per run (ms)" in label  # times of milliseconds: in ms
         assert "batch time / runs" in label and "a batch's runs share its value" in label
+        assert fig.axes[0].get_xscale() == "log"
+    finally:
+        figures.pyplot().close(fig)
+
+
+def test_time_figure_is_logarithmic_in_microseconds_for_fast_methods() -> None:
+    """Times of microseconds: a log axis in µs whose limits hold every point (not flat at 0)."""
+    stats = pd.DataFrame(
+        {"method": ["wang-lsm", "oracle"], "mean": [2e-5, 4e-6], "std": [0.0, 1e-6]}
+    )
+    fig = figures.time_per_method(stats, str)
+    try:
+        ax = fig.axes[0]
+        assert "(µs)" in fig.get_supxlabel() and ax.get_xscale() == "log"
+        lo, hi = ax.get_xlim()
+        assert 0 < lo < 4.0 and hi > 20.0
     finally:
         figures.pyplot().close(fig)
