@@ -48,6 +48,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 import pandas as pd
 
+from hbench import atomic
 from hbench.errors import RecordError
 from hbench.records import Record
 
@@ -782,15 +783,16 @@ def write_record(record: Record, path: Path | str) -> Path:
     if record.r is not None:
         data["r"] = record.hold(record.r[0])
     df = pd.DataFrame(data)
-    if kind == "parquet":
-        df.to_parquet(path, index=False)
-    else:
-        df.to_csv(
-            path,
-            sep="\t" if kind == "tsv" else ",",
-            index=False,
-            float_format=lambda v: repr(float(v)),
-        )
+    with atomic.replacing(path) as tmp:  # whole or not at all
+        if kind == "parquet":
+            df.to_parquet(tmp, index=False)
+        else:
+            df.to_csv(
+                tmp,
+                sep="\t" if kind == "tsv" else ",",
+                index=False,
+                float_format=lambda v: repr(float(v)),
+            )
     return path
 
 

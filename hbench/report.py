@@ -33,6 +33,7 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from hbench import atomic
 from hbench.errors import InputError
 
 #: Names not in the registry that reports may meet (defined by ``hbench reproduce``).
@@ -871,7 +872,7 @@ def build_report(
         "</body></html>",
     ]
     path = out / "report.html"
-    path.write_text("\n".join(page), encoding="utf-8")
+    atomic.write_text(path, "\n".join(page))
     return path
 
 

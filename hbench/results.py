@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from hbench import kernels
+from hbench import atomic, kernels
 
 #: The columns that name a cell (and the method), first in every aggregated table.
 CELL_KEYS = ["method", "nonlinearity", "p", "delay", "sigma2"]
@@ -362,10 +362,10 @@ def write_tables(rows: pd.DataFrame, out: Path) -> dict[str, Path]:
     ):
         paths[f"{name}.csv"] = out / f"{name}.csv"
         csv = table.drop(columns=[LEVEL])
-        csv.to_csv(paths[f"{name}.csv"], index=False, float_format="%.10g")
+        atomic.write_text(paths[f"{name}.csv"], csv.to_csv(index=False, float_format="%.10g"))
         shown = display_table(table)
-        (out / f"{name}.md").write_text(to_markdown(shown))
-        (out / f"{name}.tex").write_text(to_latex(shown, caption=f"hbench {name}"))
+        atomic.write_text(out / f"{name}.md", to_markdown(shown))
+        atomic.write_text(out / f"{name}.tex", to_latex(shown, caption=f"hbench {name}"))
     return paths
 
 
@@ -424,7 +424,7 @@ def provenance(
 
 def write_provenance(out: Path, **kwargs: Any) -> Path:
     path = out / "provenance.json"
-    path.write_text(json.dumps(provenance(**kwargs), indent=2, default=str))
+    atomic.write_text(path, json.dumps(provenance(**kwargs), indent=2, default=str))
     return path
 
 

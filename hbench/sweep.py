@@ -31,13 +31,12 @@ from __future__ import annotations
 
 import argparse
 import logging
-import sys
 import time
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
-from hbench.errors import InputError
+from hbench.errors import AggregationError, InputError, tell
 from hbench.schema import TIDY_COLUMNS
 
 EXAMPLE = (
@@ -110,7 +109,11 @@ def run(args: argparse.Namespace) -> int:
             raise InputError("--aggregate takes an existing sweep folder and no overrides")
         if not any(root.rglob(DONE)):
             raise InputError(f"no finished jobs (no {DONE} marker) in {root}")
-        aggregate_dir(root)
+        try:
+            aggregate_dir(root)
+        except AggregationError as exc:
+            tell(f"hbench sweep: error: {' '.join(str(exc).split())}")
+            return 1
         return 0
     bad = [o for o in overrides if o.startswith("-")]
     if bad:
@@ -375,7 +378,8 @@ def check_config(cfg: Any, where: str = "") -> None:
     if not methods:
         raise InputError(f"methods: empty{where}")
     try:
-        scenarios.build(config.scenario_spec(data))
+        scenario = scenarios.build(config.scenario_spec(data))
+        _check_size(data, scenario, where)
     except UnstableError:
         pass  # a property of the cell, not a typo: the job records it as failed rows
     except InputError as exc:
@@ -404,6 +408,28 @@ def check_config(cfg: Any, where: str = "") -> None:
         extra_name = next((x for x in ("joblib", "ray", "submitit") if x in module), None)
         hint = f": pip install 'hbench[{extra_name}]'" if extra_name else ""
         raise InputError(f"hydra/launcher: {target} is not installed{hint}") from None
+
+
+def _check_size(data: dict[str, Any], scenario: Any, where: str) -> None:
+    """Refuse a job whose memory would exceed the budget (:mod:`hbench.limits`): its chunks
+    and its tidy rows, which it holds until it writes them."""
+    from hbench import limits, runner
+
+    plant = scenario.discrete_plant
+    limits.check_states(max(plant.na, plant.delay + plant.nb), f"the plant{where}")
+    rows_per_run = len(data["methods"]) * (len(runner.QUANTITIES) + len(plant.true_params()))
+    need = limits.job_bytes(
+        scenario.K * scenario.p,
+        int(data["runs"]),
+        int(data["chunk"]),
+        int(data.get("jobs", 1)),
+        rows_per_run,
+    )
+    limits.check(
+        f"a job of {data['runs']} runs x {len(data['methods'])} methods{where}",
+        need,
+        "fewer runs per job, a shorter duration or a smaller chunk",
+    )
 
 
 def _first_line(exc: BaseException) -> str:
@@ -459,22 +485,47 @@ def _hydra_message(exc: BaseException) -> str:
 
 
 def _say(msg: str) -> None:
-    print(f"[hbench sweep] {msg}", file=sys.stderr, flush=True)
+    """A progress line on stderr. Progress is advisory: a closed stderr (``2>&1 | head``) never
+    stops or fails a job."""
+    tell(f"[hbench sweep] {msg}")
+
+
+def read_marker(marker: Path) -> dict[str, Any] | None:
+    """A ``DONE`` marker's content, or None where it cannot be read."""
+    import json
+
+    try:
+        held = json.loads(marker.read_text())
+    except (OSError, ValueError):
+        return None
+    return held if isinstance(held, dict) else None
+
+
+def job_complete(folder: Path, held: dict[str, Any]) -> bool:
+    """Whether the job in ``folder`` (its marker's content ``held``) is done: its cell ran
+    (``status`` ``ok``) and its ``rows.parquet`` is readable with the marker's row count. A job
+    whose cell failed as a whole (an error, MemoryError included) or whose rows are missing or
+    truncated is computed again when the sweep is resumed."""
+    import pyarrow.parquet as pq
+
+    if held.get("status") != "ok":
+        return False
+    try:
+        return pq.read_metadata(folder / ROWS).num_rows == held.get("rows")
+    except Exception:  # missing, truncated, not Parquet
+        return False
 
 
 def find_done(root: Path, run_id: str) -> Path | None:
-    """The folder under ``root`` whose ``DONE`` marker holds ``run_id`` (None if none)."""
-    import json
-
+    """The folder under ``root`` holding the complete job (:func:`job_complete`) of ``run_id``
+    (None if none)."""
     if not root.is_dir():
         return None
     own = root / run_id / DONE  # job folders are named by run id: the usual place
     for marker in [own] if own.is_file() else sorted(root.rglob(DONE)):
-        try:
-            if json.loads(marker.read_text()).get("run_id") == run_id:
-                return marker.parent
-        except (OSError, ValueError):
-            continue
+        held = read_marker(marker)
+        if held and held.get("run_id") == run_id and job_complete(marker.parent, held):
+            return marker.parent
     return None
 
 
@@ -511,7 +562,7 @@ def _task(cfg: Any) -> None:
     from hydra.types import RunMode
     from omegaconf import OmegaConf
 
-    from hbench import config, results
+    from hbench import atomic, config, results
 
     hc = HydraConfig.get()
     out = Path(hc.runtime.output_dir)
@@ -531,8 +582,9 @@ def _task(cfg: Any) -> None:
         _say(f"{job} [{label}]: already done ({done_in.name}), skipped")
         return
     marker = out / DONE
-    if marker.exists():  # another config's marker (same run id: found done above)
-        if not multirun:  # validate refuses this before Hydra starts; never overwrite
+    if marker.exists():  # another config's marker, or this job's incomplete run
+        held = read_marker(marker) or {}
+        if not multirun and held.get("run_id") != rid:  # validate refuses this; never overwrite
             raise InputError(f"{out} holds the finished run of another config")
         marker.unlink()  # a job folder is named by its run id: a stale marker, replaced
     t0 = time.perf_counter()
@@ -541,11 +593,14 @@ def _task(cfg: Any) -> None:
         _say(f"{job} [{label}]: {done}/{runs} runs")
 
     rows, seeds, failure = compute(data, progress=progress)
-    rows.to_parquet(out / ROWS, index=False)
-    (out / "config.yaml").write_text(OmegaConf.to_yaml(OmegaConf.create(data)))
+    # each file whole or not at all, the marker last: a job is done only with readable rows
+    with atomic.replacing(out / ROWS) as tmp:
+        rows.to_parquet(tmp, index=False)
+    atomic.write_text(out / "config.yaml", OmegaConf.to_yaml(OmegaConf.create(data)))
     results.write_provenance(out, config=data, seeds=seeds)
     status = "cell-failed" if failure else "ok"
-    marker.write_text(
+    atomic.write_text(
+        marker,
         json.dumps(
             {
                 "run_id": rid,
@@ -556,7 +611,7 @@ def _task(cfg: Any) -> None:
                 "seconds": round(time.perf_counter() - t0, 3),
             }
         )
-        + "\n"
+        + "\n",
     )
     count = ""
     if multirun:

@@ -8,7 +8,13 @@ import sys
 
 import numpy as np
 
+from hbench import atomic
 from hbench.errors import InputError
+
+#: The longest record diagnosed, in fast samples. The diagnosis holds ~6 KB per fast sample at
+#: its peak and its time grows with the length (200 000 samples: 1.3 GB, 17 s), so a longer
+#: record is refused as soon as it is read (a window of it can be diagnosed).
+MAX_SAMPLES = 250_000
 
 
 def _summary(d) -> str:
@@ -83,6 +89,12 @@ def run(args: argparse.Namespace) -> int:
     reg = registry()
     readers = [reg.get("readers", n) for n in reg.names("readers")] or None
     record = read_record(args.record, p=args.p, readers=readers)
+    if record.n_fast > MAX_SAMPLES:
+        raise InputError(
+            f"{args.record}: {record.n_fast} fast samples, more than the {MAX_SAMPLES} that "
+            f"diagnose takes (~6 KB of memory each at its peak): diagnose a window of the record "
+            "(its rows in a file of their own)"
+        )
     if args.method not in reg.names("identifiers"):
         known = ", ".join(reg.names("identifiers"))
         raise InputError(f"unknown method {args.method!r} (known: {known})")
@@ -112,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
             print(text)
         else:
             json_path.parent.mkdir(parents=True, exist_ok=True)
-            json_path.write_text(text + "\n")
+            atomic.write_text(json_path, text + "\n")
             print(f"wrote {json_path}", file=info)
     if out_dir is not None:
         from hbench.diagnose.report import write_report

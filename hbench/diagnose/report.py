@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from hbench import atomic
 from hbench.diagnose import core, stats
 
 FIGURES: tuple[tuple[str, str], ...] = (
@@ -307,10 +308,10 @@ def write_report(d: Any, out_dir: Path) -> tuple[Path, Path]:
     files = {}
     for name, png in figs.items():
         fn = f"fig_{name}.png"
-        (out_dir / fn).write_bytes(png)
+        atomic.write_bytes(out_dir / fn, png)
         files[name] = fn
     html_path = out_dir / "report.html"
     md_path = out_dir / "report.md"
-    html_path.write_text(render_html(d, figs), encoding="utf-8")
-    md_path.write_text(render_markdown(d, files), encoding="utf-8")
+    atomic.write_text(html_path, render_html(d, figs))
+    atomic.write_text(md_path, render_markdown(d, files))
     return html_path, md_path
