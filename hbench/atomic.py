@@ -40,6 +40,9 @@ def replacing(path: Path | str) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; when the block ends without an exception, the
     file written there is flushed to disk and renamed to ``path``.
 
+    A ``path`` that exists and is not a regular file (``/dev/stdout``, a FIFO) is yielded
+    itself and written in place: it cannot be replaced, and must not be.
+
     Parameters
     ----------
     path : path-like
@@ -57,6 +60,12 @@ def replacing(path: Path | str) -> Iterator[Path]:
         ``path`` and the system's reason). The temporary file is removed.
     """
     path = Path(path)
+    if path.exists() and not path.is_file():  # /dev/stdout, a FIFO: written in place
+        try:
+            yield path
+        except OSError as exc:
+            raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
+        return
     try:
         fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     except OSError as exc:

@@ -30,9 +30,11 @@ Launchers: ``basic`` (default, sequential), ``hydra/launcher=joblib`` (local pro
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
+import os
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -48,6 +50,9 @@ DONE = "DONE"
 ROWS = "rows.parquet"
 #: Environment variable (set through hydra.job.env_set) holding the number of jobs of a sweep.
 JOBS_ENV = "HBENCH_SWEEP_JOBS"
+#: Environment variable (likewise) holding the process id of ``hbench sweep``: a job running in
+#: another process (a launcher's worker) exits when that process dies (:func:`watch_parent`).
+PARENT_ENV = "HBENCH_SWEEP_PARENT"
 #: Sweeps with at most this many jobs are validated combination by combination; larger ones
 #: value by value (every swept value once, the other keys at their first value).
 FULL_CHECK_MAX = 8
@@ -133,6 +138,7 @@ def run(args: argparse.Namespace) -> int:
         argv[:0] = ["--cfg", args.cfg] + (["--resolve"] if args.resolve else [])
     elif n_jobs:
         argv.append(f"++hydra.job.env_set.{JOBS_ENV}='{n_jobs}'")
+        argv.append(f"++hydra.job.env_set.{PARENT_ENV}='{os.getpid()}'")
     return _launch(argv)
 
 
@@ -371,6 +377,9 @@ def check_config(cfg: Any, where: str = "") -> None:
         value = OmegaConf.select(cfg, key)
         if value < lo:
             raise InputError(f"{key}: must be >= {lo}, got {value}{where}")
+    timeout = data.get("method_timeout")
+    if timeout is not None and not timeout > 0:
+        raise InputError(f"method_timeout: must be > 0 seconds or null, got {timeout}{where}")
     for key in ("scenario.T", "scenario.duration"):
         if not OmegaConf.select(cfg, key) > 0:
             raise InputError(f"{key}: must be > 0, got {OmegaConf.select(cfg, key)}{where}")
@@ -550,8 +559,61 @@ def task(cfg: Any) -> None:
     launcher's worker processes."""
     from hbench.errors import one_line_warnings
 
-    with one_line_warnings("sweep"):
+    parent = os.environ.get(PARENT_ENV, "")
+    with one_line_warnings("sweep"), watch_parent(int(parent) if parent.isdigit() else None):
         _task(cfg)
+
+
+@contextlib.contextmanager
+def watch_parent(pid: int | None) -> Iterator[None]:
+    """While inside, a thread ends this process (exit status 1) as soon as process ``pid`` ends,
+    when ``pid`` is another process: a launcher's worker (joblib's loky processes) whose
+    ``hbench sweep`` was killed stops its job at once instead of computing it for nobody (the
+    job, left without its ``DONE`` marker, is computed when the sweep is resumed). Nothing is
+    watched in ``hbench sweep``'s own process (the basic launcher) or without ``pid``.
+
+    Linux's ``pidfd_open`` tells at once; elsewhere the process is polled every 0.2 s.
+    """
+    import threading
+
+    if pid is None or pid == os.getpid():
+        yield
+        return
+    stop = threading.Event()
+    try:
+        fd: int | None = os.pidfd_open(pid)
+    except (AttributeError, OSError):
+        fd = None
+
+    def alive() -> bool:
+        if fd is not None:
+            import select
+
+            return not select.select([fd], [], [], 0.2)[0]
+        stop.wait(0.2)
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return False
+        except PermissionError:  # another user's process under that id: still there
+            pass
+        return True
+
+    def watch() -> None:
+        while not stop.is_set():
+            if not alive():
+                _say(f"hbench sweep (process {pid}) has ended: this worker stops its job")
+                os._exit(1)
+
+    thread = threading.Thread(target=watch, name="hbench-watch-parent", daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join()
+        if fd is not None:
+            os.close(fd)
 
 
 def _task(cfg: Any) -> None:
@@ -688,6 +750,7 @@ def compute(data: dict[str, Any], progress: Any = None) -> tuple[Any, dict[str, 
             chunk=int(data["chunk"]),
             progress=progress,
             jobs=int(data.get("jobs", 1)),
+            method_timeout=data.get("method_timeout"),
         )
         rows, failure = result.rows, ""
     except Exception as exc:  # one bad cell must not stop the sweep

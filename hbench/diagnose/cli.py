@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import warnings
 
 import numpy as np
 
@@ -100,7 +101,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"unknown method {args.method!r} (known: {known})")
     notices = [f"notice: {n}" for n in record.meta.get("notices", [])]
     try:
-        with np.errstate(all="ignore"):
+        # warnings are held until the diagnosis ends: a refused record gets its one error line
+        with np.errstate(all="ignore"), warnings.catch_warnings(record=True) as held:
             d = diagnose(
                 record,
                 source=str(args.record),
@@ -110,11 +112,13 @@ def run(args: argparse.Namespace) -> int:
             )
     except InputError:
         # a refused record: its one error line alone (a notice such as "'y' is constant" would
-        # be a second line that the error repeats)
+        # be a second line that the error repeats, a warning a symptom of the same cause)
         raise
     except Exception:
         _print_notices(notices)  # an internal failure: the notices may help explain it
         raise
+    for w in held:  # an accepted record's warnings, shown as the command shows any
+        warnings.showwarning(w.message, w.category, w.filename, w.lineno)
     _print_notices(notices)  # an accepted record's notices, before its summary
     out = d.as_json()
     print(_summary(d), file=info)

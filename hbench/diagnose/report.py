@@ -280,10 +280,17 @@ def render_html(d: Any, figs: dict[str, bytes]) -> str:
     return "\n".join(parts)
 
 
+def _md(text: str) -> str:
+    """``text`` as Markdown shows it literally on one line: HTML's ``<``, ``>``, ``&`` escaped
+    (Markdown passes raw HTML through, so a record named ``<script>.csv`` stays text) and ``|``
+    made ``/`` (a table cell)."""
+    return html.escape(" ".join(str(text).split()), quote=False).replace("|", "/")
+
+
 def render_markdown(d: Any, fig_files: dict[str, str]) -> str:
-    lines = [f"# Diagnosis of {Path(str(d.source)).name}", "", "| | |", "| --- | --- |"]
+    lines = [f"# Diagnosis of {_md(Path(str(d.source)).name)}", "", "| | |", "| --- | --- |"]
     for k, v in _summary_rows(d):
-        lines.append(f"| {k} | {v.replace('|', '/')} |")
+        lines.append(f"| {k} | {_md(v)} |")
     lines += ["", "## Evidence", ""]
     rows = _rows(d)
     if rows:
@@ -291,7 +298,7 @@ def render_markdown(d: Any, fig_files: dict[str, str]) -> str:
         lines.append("| " + " | ".join(cols) + " |")
         lines.append("|" + " --- |" * len(cols))
         for r in rows:
-            lines.append("| " + " | ".join(r[c].replace("|", "/") for c in cols) + " |")
+            lines.append("| " + " | ".join(_md(r[c]) for c in cols) + " |")
     lines += ["", "## Figures", ""]
     for name, caption in FIGURES:
         if name in fig_files:
