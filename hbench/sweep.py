@@ -566,42 +566,26 @@ def task(cfg: Any) -> None:
 
 @contextlib.contextmanager
 def watch_parent(pid: int | None) -> Iterator[None]:
-    """While inside, a thread ends this process (exit status 1) as soon as process ``pid`` ends,
-    when ``pid`` is another process: a launcher's worker (joblib's loky processes) whose
-    ``hbench sweep`` was killed stops its job at once instead of computing it for nobody (the
-    job, left without its ``DONE`` marker, is computed when the sweep is resumed). Nothing is
-    watched in ``hbench sweep``'s own process (the basic launcher) or without ``pid``.
+    """While inside, a thread ends this process (exit status 1) as soon as its parent, process
+    ``pid``, ends: a launcher's worker (joblib's loky processes, children of ``hbench sweep``)
+    whose sweep was killed stops its job at once instead of computing it for nobody (the job,
+    left without its ``DONE`` marker, is computed when the sweep is resumed).
 
-    Linux's ``pidfd_open`` tells at once; elsewhere the process is polled every 0.2 s.
+    Nothing is watched where ``pid`` is None, this process, or not its parent: the basic
+    launcher (the job runs in ``hbench sweep`` itself), Ray's workers (children of Ray's own
+    daemon) and SLURM jobs (on other machines) are left to their launcher. The parent is
+    polled every 0.2 s (a dead parent's children are handed to another process).
     """
     import threading
 
-    if pid is None or pid == os.getpid():
+    if pid is None or pid == os.getpid() or pid != os.getppid():
         yield
         return
     stop = threading.Event()
-    try:
-        fd: int | None = os.pidfd_open(pid)
-    except (AttributeError, OSError):
-        fd = None
-
-    def alive() -> bool:
-        if fd is not None:
-            import select
-
-            return not select.select([fd], [], [], 0.2)[0]
-        stop.wait(0.2)
-        try:
-            os.kill(pid, 0)
-        except ProcessLookupError:
-            return False
-        except PermissionError:  # another user's process under that id: still there
-            pass
-        return True
 
     def watch() -> None:
-        while not stop.is_set():
-            if not alive():
+        while not stop.wait(0.2):
+            if os.getppid() != pid:
                 _say(f"hbench sweep (process {pid}) has ended: this worker stops its job")
                 os._exit(1)
 
@@ -612,8 +596,6 @@ def watch_parent(pid: int | None) -> Iterator[None]:
     finally:
         stop.set()
         thread.join()
-        if fd is not None:
-            os.close(fd)
 
 
 def _task(cfg: Any) -> None:
