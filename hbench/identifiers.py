@@ -453,11 +453,16 @@ def largest_order(options: IdentifyOptions) -> int:
 
 def _kept(cache: dict[Any, Any] | None, key: Any, make: Callable[[], Any]) -> Any:
     """``make()``, kept in ``cache`` (a record's) under ``key`` and taken from there next time;
-    computed afresh when there is no cache (or no key)."""
+    computed afresh when there is no cache (or no key). Kept arrays (``make()`` itself, or the
+    arrays of a tuple) are made read-only, as the record's are."""
     if cache is None or key is None:
         return make()
     if key not in cache:
-        cache[key] = make()
+        value = make()
+        for arr in value if isinstance(value, tuple) else (value,):
+            if isinstance(arr, np.ndarray):  # shared by the methods: none may change it
+                arr.flags.writeable = False
+        cache[key] = value
     return cache[key]
 
 

@@ -556,12 +556,17 @@ def task(cfg: Any) -> None:
     """The Hydra task: one cell x the requested methods x R runs into the job's output folder.
 
     Warnings are shown on one line (:func:`hbench.errors.one_line_warnings`), also in a
-    launcher's worker processes."""
-    from hbench.errors import one_line_warnings
+    launcher's worker processes. A job file that cannot be written (a full disk) stops the sweep
+    with one line and exit status 2; the job is left without its marker (resumed later)."""
+    from hbench.errors import OutputError, one_line_warnings
 
     parent = os.environ.get(PARENT_ENV, "")
     with one_line_warnings("sweep"), watch_parent(int(parent) if parent.isdigit() else None):
-        _task(cfg)
+        try:
+            _task(cfg)
+        except OutputError as exc:  # a full disk: no later job could write either
+            tell(f"hbench sweep: error: {' '.join(str(exc).split())}")
+            raise SystemExit(2) from None
 
 
 @contextlib.contextmanager

@@ -64,6 +64,19 @@ class Mutates(Identifier):
         return _lsm(record, options)
 
 
+class MutatesShared(Identifier):
+    """Writes into what the record's methods share (the quiet-phase differences of y)."""
+
+    name = "test-mutates-shared"
+
+    def identify(self, record: Any, options: Any, truth: Any = None) -> Any:
+        from hbench.identifiers import largest_order, shared_moments
+
+        dy, _ = shared_moments(record.y, record.p, largest_order(options), record.cache)
+        dy *= 0.0
+        return _lsm(record, options)
+
+
 class Exits(Identifier):
     name = "test-exits"
 
@@ -264,15 +277,16 @@ def _values(rows: pd.DataFrame, method: str) -> np.ndarray:
     return mine["value"].to_numpy()
 
 
-def test_a_method_writing_into_the_record_fails_alone() -> None:
+@pytest.mark.parametrize("bad", [Mutates, MutatesShared])
+def test_a_method_writing_into_the_record_fails_alone(bad: type[Identifier]) -> None:
     lsm = methods_from_names(["wang-lsm"])
-    rows = _cell({"test-mutates": Mutates(), **lsm})  # the mutating method runs first
+    rows = _cell({bad.name: bad(), **lsm})  # the mutating method runs first
     alone = _cell(lsm)
     np.testing.assert_array_equal(_values(rows, "wang-lsm"), _values(alone, "wang-lsm"))
     assert (rows[rows["method"] == "wang-lsm"]["status"] == "ok").all()
-    bad = rows[rows["method"] == "test-mutates"]
-    assert (bad["status"] == "failed").all()
-    assert bad["error"].str.contains("read-only").all()
+    mine = rows[rows["method"] == bad.name]
+    assert (mine["status"] == "failed").all()
+    assert mine["error"].str.contains("read-only").all()
 
 
 def test_a_method_calling_sys_exit_fails_alone(
@@ -639,3 +653,16 @@ def read_record_frame(frame: pd.DataFrame, path: Path) -> Any:
     else:
         frame.to_csv(path, index=False)
     return read_record(path)
+
+
+def test_a_sweep_on_a_full_disk_stops_with_one_line(
+    run_cli: RunCli, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    _disk_full(monkeypatch)
+    status, _, err = sweep(run_cli, tmp_path, "noise.snr=5,20", "method=wang-lsm", *SMALL)
+    assert status == 2, err
+    assert "Traceback" not in err
+    errors = [line for line in err.splitlines() if "error" in line]
+    assert len(errors) == 1 and "No space left on device" in errors[0]
+    assert not list(tmp_path.rglob(DONE))  # nothing counts as done
+    assert not list(tmp_path.rglob("*.tmp"))
