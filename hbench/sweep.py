@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
 import logging
 import os
 import time
@@ -157,7 +158,7 @@ def _launch(argv: Sequence[str]) -> int:
     try:
         # cells with jobs > 1 that run in this process (the basic launcher) share worker
         # processes kept for the sweep instead of forking them per cell (hbench.workers)
-        with workers.kept_workers():
+        with workers.kept_workers(), _unwritable_is_one_line():
             _run_hydra(
                 args=hargs,
                 args_parser=parser,
@@ -175,6 +176,46 @@ def _launch(argv: Sequence[str]) -> int:
         root.setLevel(saved[0])
         root.handlers[:] = saved[1]
     return 0
+
+
+#: ``errno`` values of a file system that takes no more data.
+_FULL = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EFBIG})
+
+
+@contextlib.contextmanager
+def _unwritable_is_one_line() -> Iterator[None]:
+    """While inside, a sweep that cannot write (a full disk, in a job's files or in Hydra's own)
+    stops with one line on stderr and exit status 2 instead of Hydra's traceback; the job being
+    written is left without its ``DONE`` marker, so resuming computes it.
+
+    Hydra reports an exception of a run through ``hydra._internal.utils.run_and_report`` (a
+    traceback, then exit 1); inside this block that name is wrapped so that such exceptions
+    become ``SystemExit(2)`` first, and restored when the block ends.
+    """
+    from hydra._internal import utils as hydra_utils
+
+    from hbench.errors import OutputError
+
+    original = hydra_utils.run_and_report
+
+    def checked(func: Any) -> Any:
+        try:
+            return func()
+        except OutputError as exc:
+            tell(f"hbench sweep: error: {' '.join(str(exc).split())}")
+            raise SystemExit(2) from None
+        except OSError as exc:
+            if exc.errno not in _FULL:
+                raise
+            where = f"cannot write {exc.filename}" if exc.filename else "cannot write the results"
+            tell(f"hbench sweep: error: {where}: {exc.strerror}")
+            raise SystemExit(2) from None
+
+    hydra_utils.run_and_report = lambda func: original(lambda: checked(func))
+    try:
+        yield
+    finally:
+        hydra_utils.run_and_report = original
 
 
 # --------------------------------------------------------------------------------------------
@@ -556,17 +597,12 @@ def task(cfg: Any) -> None:
     """The Hydra task: one cell x the requested methods x R runs into the job's output folder.
 
     Warnings are shown on one line (:func:`hbench.errors.one_line_warnings`), also in a
-    launcher's worker processes. A job file that cannot be written (a full disk) stops the sweep
-    with one line and exit status 2; the job is left without its marker (resumed later)."""
-    from hbench.errors import OutputError, one_line_warnings
+    launcher's worker processes."""
+    from hbench.errors import one_line_warnings
 
     parent = os.environ.get(PARENT_ENV, "")
     with one_line_warnings("sweep"), watch_parent(int(parent) if parent.isdigit() else None):
-        try:
-            _task(cfg)
-        except OutputError as exc:  # a full disk: no later job could write either
-            tell(f"hbench sweep: error: {' '.join(str(exc).split())}")
-            raise SystemExit(2) from None
+        _task(cfg)
 
 
 @contextlib.contextmanager

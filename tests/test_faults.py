@@ -655,10 +655,20 @@ def read_record_frame(frame: pd.DataFrame, path: Path) -> Any:
     return read_record(path)
 
 
+@pytest.mark.parametrize("writer", ["hbench", "hydra"])
 def test_a_sweep_on_a_full_disk_stops_with_one_line(
-    run_cli: RunCli, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    run_cli: RunCli, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, writer: str
 ) -> None:
-    _disk_full(monkeypatch)
+    """Whether hbench's files or Hydra's own (a job's .hydra/) meet the full disk."""
+    if writer == "hbench":
+        _disk_full(monkeypatch)
+    else:
+        from hydra.core import utils as hydra_core
+
+        def full(*args: Any, **kwargs: Any) -> None:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+        monkeypatch.setattr(hydra_core, "_save_config", full)
     status, _, err = sweep(run_cli, tmp_path, "noise.snr=5,20", "method=wang-lsm", *SMALL)
     assert status == 2, err
     assert "Traceback" not in err
