@@ -22,6 +22,7 @@ at :data:`MAX_STATES`: its stability check and the loop cost the square (memory)
 from __future__ import annotations
 
 import os
+from typing import Any
 
 from hbench.errors import InputError
 
@@ -93,8 +94,10 @@ def check(what: str, need: float, hint: str = "") -> None:
         )
 
 
-def check_states(states: int, what: str) -> None:
-    """Refuse a closed loop of more than :data:`MAX_STATES` states (``what`` names it)."""
+def check_states(plant: Any, what: str) -> None:
+    """Refuse a plant (a :class:`hbench.plants.DiscretePlant`) whose realisation has more than
+    :data:`MAX_STATES` states: its order plus its delay in fast samples (``what`` names it)."""
+    states = max(int(plant.na), int(plant.delay) + int(plant.nb))
     if states > MAX_STATES:
         raise InputError(
             f"{what} has {states} states (order + delay in fast samples), more than "

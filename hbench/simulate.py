@@ -376,7 +376,7 @@ def simulate(
     plant, p, K = sc.discrete_plant, sc.p, sc.K
     N = K * p
     # sizes before any work (hbench.limits): the loop's state dimension, then the arrays
-    limits.check_states(max(plant.na, plant.delay + plant.nb), f"the plant of scenario {sc.name!r}")
+    limits.check_states(plant, f"the plant of scenario {sc.name!r}")
     limits.check(
         f"simulating {runs} run{'s' if runs != 1 else ''} of {N} fast samples",
         limits.simulation_bytes(N, runs),

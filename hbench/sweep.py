@@ -466,7 +466,7 @@ def _check_size(data: dict[str, Any], scenario: Any, where: str) -> None:
     from hbench import limits, runner
 
     plant = scenario.discrete_plant
-    limits.check_states(max(plant.na, plant.delay + plant.nb), f"the plant{where}")
+    limits.check_states(plant, f"the plant{where}")
     rows_per_run = len(data["methods"]) * (len(runner.QUANTITIES) + len(plant.true_params()))
     need = limits.job_bytes(
         scenario.K * scenario.p,
