@@ -11,7 +11,6 @@ same way.
 
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 from typing import Any
@@ -19,6 +18,8 @@ from typing import Any
 from hydra.experimental.callback import Callback
 
 import hbench.config  # noqa: F401 - registers the schema and resolvers (also in worker processes)
+from hbench import atomic
+from hbench.errors import AggregationError, OutputError, tell
 
 #: Rows with equal values here are one measurement (see :func:`hbench.config.cell_id`).
 DEDUP_KEYS = ["cell", "method", "run", "quantity"]
@@ -28,19 +29,32 @@ def collect_rows(root: Path) -> tuple[Any, list[Path]]:
     """All rows of the finished jobs under ``root`` (None if there are none) and their folders."""
     import pandas as pd
 
-    from hbench.sweep import DONE, ROWS, SORT_KEYS, normalise
+    from hbench.sweep import DONE, ROWS, SORT_KEYS, normalise, read_marker
 
     seen: dict[str, Path] = {}
     frames = []
     for marker in sorted(Path(root).rglob(DONE)):
+        held = read_marker(marker)
+        run_id = (held or {}).get("run_id")
+        if run_id is None or run_id in seen:
+            continue
         try:
-            run_id = json.loads(marker.read_text())["run_id"]
-        except (OSError, ValueError, KeyError):
-            continue
-        if run_id in seen or not (marker.parent / ROWS).exists():
-            continue
+            frame = pd.read_parquet(marker.parent / ROWS)
+        except Exception as exc:  # missing, truncated, not Parquet: never silently dropped
+            reason = " ".join(f"{type(exc).__name__}: {exc}".split())[:200]
+            raise AggregationError(
+                f"job {marker.parent} has a {DONE} marker but its {ROWS} cannot be read "
+                f"({reason}); the tables in {root} are not updated: resume the sweep into "
+                "that folder to compute the job again"
+            ) from None
+        if len(frame) != held.get("rows", len(frame)):
+            raise AggregationError(
+                f"job {marker.parent}: {ROWS} holds {len(frame)} rows, its {DONE} marker "
+                f"{held.get('rows')}; the tables in {root} are not updated: resume the sweep "
+                "into that folder to compute the job again"
+            )
         seen[run_id] = marker.parent
-        frames.append(pd.read_parquet(marker.parent / ROWS))
+        frames.append(frame)
     if not frames:
         return None, []
     rows = normalise(pd.concat(frames, ignore_index=True))
@@ -58,11 +72,12 @@ def aggregate_dir(root: Path, quiet: bool = False) -> dict[str, Path]:
     rows, jobs = collect_rows(root)
     if rows is None:
         if not quiet:
-            print(f"hbench sweep: no finished jobs in {root}", file=sys.stderr)
+            tell(f"hbench sweep: no finished jobs in {root}")
         return {}
     paths = results.write_tables(rows, root)
     if not (root / DONE).exists():  # a sweep folder; a single run's rows are already there
-        rows.to_parquet(root / ROWS, index=False)
+        with atomic.replacing(root / ROWS) as tmp:
+            rows.to_parquet(tmp, index=False)
     paths[ROWS] = root / ROWS
     _warn_pooled(rows)
     if not quiet:
@@ -73,12 +88,12 @@ def aggregate_dir(root: Path, quiet: bool = False) -> dict[str, Path]:
             else ""
         )
         plural = "s" if len(jobs) != 1 else ""
-        print(
+        tell(
             f"hbench sweep: {len(jobs)} job{plural} aggregated{note}\n"
             f"  tables: {root / 'fitness.csv'}, {root / 'bias.csv'}, "
             f"{root / 'structure.csv'} (+ .md, .tex)\n"
             f"  rows:   {root / ROWS}",
-            flush=True,
+            sys.stdout,
         )
     return paths
 
@@ -90,19 +105,28 @@ def _warn_pooled(rows: Any) -> None:
     counts = ok.groupby(keys, dropna=False)["cell"].nunique()
     pooled = counts[counts > 1]
     if len(pooled):
-        print(
+        tell(
             f"hbench sweep: note: {len(pooled)} table rows pool cells that differ outside "
             "(method, nonlinearity, p, delay, sigma2/snr), e.g. in plant, controller, "
-            "identify or seed; rows.parquet keeps them apart (column cell)",
-            file=sys.stderr,
+            "identify or seed; rows.parquet keeps them apart (column cell)"
         )
+
+
+def _aggregate_or_exit(root: Path) -> None:
+    """:func:`aggregate_dir`; where it fails, one line on stderr and ``SystemExit(1)`` (Hydra
+    turns a callback's other exceptions into a warning and exit status 0)."""
+    try:
+        aggregate_dir(root)
+    except (AggregationError, OutputError) as exc:
+        tell(f"hbench sweep: error: {' '.join(str(exc).split())}")
+        raise SystemExit(2 if isinstance(exc, OutputError) else 1) from None
 
 
 class AggregateTables(Callback):
     """Write the tables after a run (into its folder) or a multirun (into the sweep folder)."""
 
     def on_run_end(self, config: Any, **kwargs: Any) -> None:
-        aggregate_dir(Path(str(config.hydra.run.dir)))
+        _aggregate_or_exit(Path(str(config.hydra.run.dir)))
 
     def on_multirun_end(self, config: Any, **kwargs: Any) -> None:
-        aggregate_dir(Path(str(config.hydra.sweep.dir)))
+        _aggregate_or_exit(Path(str(config.hydra.sweep.dir)))

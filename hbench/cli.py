@@ -73,6 +73,8 @@ def check_output(path: Path | str, option: str, folder: bool = False) -> Path:
             raise InputError(f"{where}: is {what}")
         if not os.access(path, os.W_OK | (os.X_OK if folder else 0)):
             raise InputError(f"{where}: not writable (permission denied)")
+        if folder or path.is_file():  # a file is replaced through a new one beside it
+            _check_creatable(path if folder else path.parent, where)
         return path
     ancestor = path.parent
     while not ancestor.exists() and ancestor != ancestor.parent:
@@ -81,7 +83,20 @@ def check_output(path: Path | str, option: str, folder: bool = False) -> Path:
         raise InputError(f"{where}: {ancestor} is not a folder")
     if not os.access(ancestor, os.W_OK | os.X_OK):
         raise InputError(f"{where}: cannot create it in {ancestor} (permission denied)")
+    _check_creatable(ancestor, where)
     return path
+
+
+def _check_creatable(folder: Path, where: str) -> None:
+    """Refuse a folder that takes no new files (``/proc``, a read-only file system), which
+    permissions do not tell: an unnamed temporary file is made there and removed at once."""
+    import tempfile
+
+    try:
+        tempfile.TemporaryFile(dir=folder).close()
+    except OSError as exc:
+        reason = exc.strerror or type(exc).__name__
+        raise InputError(f"{where}: cannot create files in {folder} ({reason})") from None
 
 
 def _cmd_plugins(args: argparse.Namespace) -> int:
@@ -137,7 +152,15 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
     out = check_output(args.out, "--out")
     writable_kind(out)  # before the simulation, not after it
+    if args.seed < 0:  # numpy's seeds are non-negative
+        raise InputError(f"--seed must be >= 0, got {args.seed}")
     spec = copy.deepcopy(scenarios.PAPER_SECTION6)
+    keys = [item.split("=", 1)[0] for item in args.set or [] if "=" in item]
+    if "noise.sigma2" in keys and "noise.snr" in keys:
+        raise InputError(
+            "--set noise.sigma2 and --set noise.snr are both given: give one (the noise level "
+            "by variance or by signal-to-noise ratio)"
+        )
     for item in args.set or []:
         if "=" not in item:
             raise InputError(f"--set takes KEY=VALUE, got {item!r}")

@@ -55,6 +55,9 @@ warnings.filterwarnings("ignore", message=SCHEMA_NOTE, category=UserWarning)
 #: Keys whose value does not change a job's numbers: where it writes, and how many runs are
 #: simulated at once and by how many processes (every run draws from its own stream).
 NOT_IN_RUN_ID = ("out", "chunk", "jobs")
+#: Keys left out of the run id while null (their default): a job without a time limit keeps
+#: the id it has without the key.
+NULL_NOT_IN_RUN_ID = ("method_timeout",)
 
 
 @dataclass
@@ -99,6 +102,7 @@ class SweepConfig:
     seed: int = 0
     chunk: int = 200
     jobs: int = 1
+    method_timeout: float | None = None
     out: str | None = None
 
 
@@ -227,7 +231,11 @@ def plain(cfg: DictConfig | dict[str, Any]) -> dict[str, Any]:
 
 def run_id(cfg: DictConfig | dict[str, Any]) -> str:
     """The id of a job: a hash of its resolved config without the hydra node and ``out``."""
-    data = {k: v for k, v in plain(cfg).items() if k not in NOT_IN_RUN_ID}
+    data = {
+        k: v
+        for k, v in plain(cfg).items()
+        if k not in NOT_IN_RUN_ID and not (k in NULL_NOT_IN_RUN_ID and v is None)
+    }
     return "r" + digest(data)
 
 

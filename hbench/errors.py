@@ -1,8 +1,10 @@
 """Exceptions that the command line maps to exit statuses, and their one-line descriptions.
 
 ``InputError`` (and its subclasses) mean bad input or configuration: the command line prints its
-message on one line and exits with status 2. ``MethodError`` (a plugin that broke its interface)
-is printed on one line with status 1. Anything else is an internal error (status 1, traceback).
+message on one line and exits with status 2; ``OutputError`` (an output that cannot be written:
+disk full, a read-only or pseudo file system) is one of them. ``MethodError`` (a plugin that
+broke its interface) and ``AggregationError`` (finished jobs whose rows cannot be read) are
+printed on one line with status 1. Anything else is an internal error (status 1, traceback).
 """
 
 import contextlib
@@ -30,6 +32,16 @@ class PluginNotFoundError(InputError, KeyError):
 
 class UnstableError(InputError):
     """An unstable plant, controller or closed loop; the message says which."""
+
+
+class OutputError(InputError):
+    """An output file that cannot be written (no space left, a read-only file system, a folder
+    that takes no files); nothing is left under its name (:mod:`hbench.atomic`)."""
+
+
+class AggregationError(RuntimeError):
+    """A sweep's tables cannot be written: a finished job's rows cannot be read. The message
+    names the job's folder; the tables are left as they were."""
 
 
 class MethodError(RuntimeError):
@@ -74,3 +86,13 @@ def one_line_warnings(command: str) -> Iterator[None]:
         yield
     finally:
         warnings.showwarning = previous
+
+
+def tell(text: str, file: Any = None) -> None:
+    """Print ``text`` (a progress or summary line) on ``file`` (stderr by default). Such lines
+    are advisory: a closed stream (``hbench sweep ... 2>&1 | head``) is ignored, never an error
+    that stops the work."""
+    try:
+        print(text, file=sys.stderr if file is None else file, flush=True)
+    except (OSError, ValueError):  # BrokenPipeError, a closed file
+        pass

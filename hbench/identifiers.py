@@ -453,11 +453,16 @@ def largest_order(options: IdentifyOptions) -> int:
 
 def _kept(cache: dict[Any, Any] | None, key: Any, make: Callable[[], Any]) -> Any:
     """``make()``, kept in ``cache`` (a record's) under ``key`` and taken from there next time;
-    computed afresh when there is no cache (or no key)."""
+    computed afresh when there is no cache (or no key). Kept arrays (``make()`` itself, or the
+    arrays of a tuple) are made read-only, as the record's are."""
     if cache is None or key is None:
         return make()
     if key not in cache:
-        cache[key] = make()
+        value = make()
+        for arr in value if isinstance(value, tuple) else (value,):
+            if isinstance(arr, np.ndarray):  # shared by the methods: none may change it
+                arr.flags.writeable = False
+        cache[key] = value
     return cache[key]
 
 
@@ -714,11 +719,16 @@ def check_estimate(est: Any, record: Record, name: str) -> None:
 NO_ESTIMATE = "the method returned no finite inner-signal estimate U for this run"
 
 
+#: The reason of a run whose method called it identifiable but returned an infinite parameter.
+NON_FINITE = "non-finite parameters (an infinite a or b)"
+
+
 def run_status(est: Estimate) -> tuple[np.ndarray, list[str]]:
     """Each run's status and reason: ``ok`` (with the method's note, if any), ``not-identifiable``
     (the method's flag and its reason), or ``failed`` where the method called the run
     identifiable but returned neither a finite sample of ``U`` nor a reason (a result without
-    an estimate or an explanation: a failure of the method, reason :data:`NO_ESTIMATE`).
+    an estimate or an explanation: a failure of the method, reason :data:`NO_ESTIMATE`), or
+    an infinite parameter (reason :data:`NON_FINITE`: an overflow is never an estimate).
 
     A run without ``U`` whose method says why (bai-fu's refused unstable inverse) stays ``ok``:
     its parameters, orders and delay are estimates the bias and structure tables count."""
@@ -726,8 +736,22 @@ def run_status(est: Estimate) -> tuple[np.ndarray, list[str]]:
     reasons = [str(r) for r in est.reason]
     silent = np.array([not r for r in reasons], bool)
     empty = ok & silent & ~np.isfinite(est.U).any(axis=1)
-    status = np.where(ok, np.where(empty, "failed", "ok"), "not-identifiable")
-    return status, [NO_ESTIMATE if e else r for e, r in zip(empty, reasons, strict=True)]
+    infinite = ok & ~empty & _infinite_params(est)
+    status = np.where(ok, np.where(empty | infinite, "failed", "ok"), "not-identifiable")
+    return status, [
+        NO_ESTIMATE if e else NON_FINITE if f else r
+        for e, f, r in zip(empty, infinite, reasons, strict=True)
+    ]
+
+
+def _infinite_params(est: Estimate) -> np.ndarray:
+    """Per run: whether a parameter within the run's orders is infinite (an overflow, never an
+    estimate; ``nan`` stays how a method says the record does not determine it)."""
+    bad = np.zeros(est.runs, bool)
+    for values in est.params().values():
+        with np.errstate(invalid="ignore"):
+            bad |= np.isinf(np.asarray(values, float))
+    return bad
 
 
 def _shape_failed(problems: list[str]) -> bool:

@@ -8,6 +8,7 @@ block a broken plugin.
 from __future__ import annotations
 
 import os
+import re
 import sys
 from dataclasses import dataclass
 from functools import cache
@@ -122,6 +123,7 @@ class Registry:
                 source = _source_of(impl.plugin, self.pm)
 
                 def register(name: str, obj: Any, _kind: str = kind, _src: str = source) -> None:
+                    check_name(name, SINGULAR[_kind], _src)
                     if name in out[_kind]:
                         prev = out[_kind][name].source
                         raise InputError(
@@ -160,6 +162,20 @@ class Registry:
             ]
             for kind, entries in self.entries.items()
         }
+
+
+#: A plugin's name: it becomes a config option, a file name and report text, so a letter or
+#: digit, then letters, digits, ``_``, ``-`` and single ``.`` (no ``/``, ``<``, ``..``, spaces).
+NAME = re.compile(r"[A-Za-z0-9](?:[A-Za-z0-9_-]|\.(?!\.))*")
+
+
+def check_name(name: Any, what: str, source: str) -> None:
+    """Refuse a plugin name that is not :data:`NAME` (:class:`InputError` naming its plugin)."""
+    if not isinstance(name, str) or not NAME.fullmatch(name) or len(name) > 64:
+        raise InputError(
+            f"{what} name {name!r} from {source} is not a valid name (a letter or digit, then "
+            "letters, digits, '_', '-' or single '.'; at most 64 characters)"
+        )
 
 
 @cache

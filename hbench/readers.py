@@ -48,6 +48,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 import pandas as pd
 
+from hbench import atomic
 from hbench.errors import RecordError
 from hbench.records import Record
 
@@ -65,8 +66,11 @@ __all__ = [
 #: Fewest slow samples a record may have.
 MIN_SLOW_SAMPLES = 50
 
-#: Relative tolerance on the steps of ``t`` (relative to the median step ``h``).
+#: Relative tolerance on the steps of ``t`` (relative to the median step ``h``); steps are also
+#: allowed :data:`T_ULPS` float spacings of ``t``'s largest value (Unix times near 1.7e9 s are
+#: stored to 2.4e-7 s).
 T_RTOL = 1e-6
+T_ULPS = 4
 
 #: A coarser grid holding at least this share of ``x``'s changes makes a smaller gcd suspect ...
 _NEAR_GRID_SHARE = 0.9
@@ -244,13 +248,17 @@ def record_from_fast(
     h = float(np.median(dt))
     if not h > 0:
         raise RecordError(f"'{lab['t']}' does not increase (median step {h:g} s)")
-    off = np.abs(dt - h) > T_RTOL * h
+    resolution = T_ULPS * float(np.spacing(np.max(np.abs(tt))))
+    off = np.abs(dt - h) > max(T_RTOL * h, resolution)
+    if resolution > 0.1 * T_RTOL * h:  # steps rounded to t's resolution: h from the span
+        h = float((tt[-1] - tt[0]) / (n - 1))
     if off.any():
         i = int(np.argmax(off))
         raise RecordError(
             f"'{lab['t']}' is not uniform: the step from {where(i)} to row {i + 1} is "
             f"{dt[i]:.9g} s, {dt[i] - h:+.3g} s off the median step h = {h:.9g} s "
-            f"(relative tolerance {T_RTOL:g}); {int(off.sum())} of {dt.size} steps are off"
+            f"(relative tolerance {T_RTOL:g}, or {resolution:.2g} s, the float resolution of "
+            f"'{lab['t']}'); {int(off.sum())} of {dt.size} steps are off"
         )
     h = _exact_h(tt, h)
 
@@ -439,8 +447,9 @@ class TableReader:
                     f"missing column{'s' if len(missing) > 1 else ''} {names} (columns found: "
                     f"{found}); a record needs t, x, y and optionally r"
                 )
+            t, when = _seconds(df["t"])
             rec = record_from_fast(
-                df["t"].to_numpy(),
+                t,
                 df["x"].to_numpy(),
                 df["y"].to_numpy(),
                 df["r"].to_numpy() if "r" in df.columns else None,
@@ -448,7 +457,24 @@ class TableReader:
                 source=str(path),
             )
         rec.meta["format"] = self.name
+        if when:
+            rec.meta["notices"].insert(0, when)
         return rec
+
+
+def _seconds(t: pd.Series) -> tuple[np.ndarray, str]:
+    """A ``t`` column in seconds, and a notice where it was converted: date-times (Parquet's
+    timestamps, with or without a time zone) and durations become seconds since the first row
+    (their nanoseconds are never taken for seconds)."""
+    if pd.api.types.is_datetime64_any_dtype(t.dtype) or pd.api.types.is_timedelta64_dtype(t.dtype):
+        if t.isna().any():
+            i = int(np.argmax(t.isna().to_numpy()))
+            raise RecordError(f"column 't' is missing (NaT) at row {i}")
+        start = t.iloc[0]
+        seconds = (t - start).dt.total_seconds().to_numpy()
+        kind = "date-time" if pd.api.types.is_datetime64_any_dtype(t.dtype) else "duration"
+        return seconds, f"'t' is a {kind} column: read as seconds since its first row ({start})"
+    return t.to_numpy(), ""
 
 
 # ----------------------------------------------------------------------------- plant-log reader
@@ -597,9 +623,10 @@ class PlantLogReader:
         width = 1 + max(i for i in (i_mv, i_pv, i_sv, i_mode) if i is not None)
         for j, row in enumerate(rows):
             if len(row) < width:
+                cut = "; the file ends inside it (truncated?)" if j == len(rows) - 1 else ""
                 raise RecordError(
-                    f"line {first + 1 + j} has {len(row)} field(s); {width} are expected "
-                    f"(columns: {', '.join(names)})"
+                    f"line {first + 1 + j} has {len(row)} field(s); the first {width} of the "
+                    f"{len(names)} columns are needed ({', '.join(names[:width])}){cut}"
                 )
 
         def col(i: int) -> list[str]:
@@ -782,15 +809,16 @@ def write_record(record: Record, path: Path | str) -> Path:
     if record.r is not None:
         data["r"] = record.hold(record.r[0])
     df = pd.DataFrame(data)
-    if kind == "parquet":
-        df.to_parquet(path, index=False)
-    else:
-        df.to_csv(
-            path,
-            sep="\t" if kind == "tsv" else ",",
-            index=False,
-            float_format=lambda v: repr(float(v)),
-        )
+    with atomic.replacing(path) as tmp:  # whole or not at all
+        if kind == "parquet":
+            df.to_parquet(tmp, index=False)
+        else:
+            df.to_csv(
+                tmp,
+                sep="\t" if kind == "tsv" else ",",
+                index=False,
+                float_format=lambda v: repr(float(v)),
+            )
     return path
 
 

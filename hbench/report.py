@@ -40,6 +40,7 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from hbench import atomic
 from hbench.errors import InputError
 from hbench.style import method_info
 
@@ -1063,7 +1064,7 @@ def build_report(
         "</body></html>",
     ]
     path = out / "report.html"
-    path.write_text("\n".join(page), encoding="utf-8")
+    atomic.write_text(path, "\n".join(page))
     return path
 
 

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from hbench import kernels
+from hbench import atomic, kernels
 
 #: The columns that name a cell (and the method), first in every aggregated table.
 CELL_KEYS = ["method", "nonlinearity", "p", "delay", "sigma2"]
@@ -435,10 +435,12 @@ def write_tables(rows: pd.DataFrame, out: Path) -> dict[str, Path]:
     ):
         paths[f"{name}.csv"] = out / f"{name}.csv"
         shown = display_table(table)  # the CSV, Markdown and LaTeX files: same columns, order
-        shown.to_csv(paths[f"{name}.csv"], index=False, float_format="%.10g")
-        (out / f"{name}.md").write_text(to_markdown(shown))
+        atomic.write_text(
+            paths[f"{name}.csv"], shown.to_csv(index=False, float_format="%.10g")
+        )
+        atomic.write_text(out / f"{name}.md", to_markdown(shown))
         tex = to_latex(shown, caption=f"hbench {name}", label=f"tab:hbench-{name}")
-        (out / f"{name}.tex").write_text(tex)
+        atomic.write_text(out / f"{name}.tex", tex)
     return paths
 
 
@@ -497,7 +499,7 @@ def provenance(
 
 def write_provenance(out: Path, **kwargs: Any) -> Path:
     path = out / "provenance.json"
-    path.write_text(json.dumps(provenance(**kwargs), indent=2, default=str))
+    atomic.write_text(path, json.dumps(provenance(**kwargs), indent=2, default=str))
     return path
 
 

@@ -8,8 +8,11 @@ the truth, and writes one row per run x method x quantity. A method that raises 
 
 from __future__ import annotations
 
+import contextlib
+import signal
+import threading
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -104,6 +107,7 @@ def run_cell(
     progress: Callable[[int, int], None] | None = None,
     keep_example: bool = False,
     jobs: int = 1,
+    method_timeout: float | None = None,
 ) -> CellResult:
     """Simulate ``runs`` realisations of ``scenario`` and run every method on them.
 
@@ -135,6 +139,9 @@ def run_cell(
         many cells; see :mod:`hbench.workers`). The rows are the same whatever ``jobs`` (but for
         the ``seconds`` quantity). With ``jobs > 1`` the cell is cut into a multiple of ``jobs``
         chunks of near-equal size (at most ``chunk`` runs each).
+    method_timeout : float, optional
+        Seconds a method may take on one chunk (:func:`time_limit`); past them its runs of the
+        chunk are ``failed`` with "timed out". None: no limit.
 
     Notes
     -----
@@ -145,6 +152,8 @@ def run_cell(
     """
     if int(jobs) < 1:
         raise InputError(f"jobs must be >= 1, got {jobs}")
+    if method_timeout is not None and not method_timeout > 0:
+        raise InputError(f"method_timeout must be > 0 seconds or null, got {method_timeout}")
     plant = scenario.discrete_plant
     if options is None:
         options = IdentifyOptions(delay_multiple=plant.delay_multiple(scenario.p))
@@ -159,7 +168,7 @@ def run_cell(
         "snr_target": scenario.snr if scenario.snr is not None else np.nan,
         "seed": str(seq.entropy),
     }
-    work = _Work(scenario, dict(methods), options, ids, seq, keep_example)
+    work = _Work(scenario, dict(methods), options, ids, seq, keep_example, method_timeout)
     pieces = _pieces(runs, chunk, jobs)
     rows: list[tidy.Block] = []
     example: dict[str, Any] = {}
@@ -207,11 +216,62 @@ class _Work:
     ids: dict[str, Any]
     seq: np.random.SeedSequence
     keep_example: bool
+    timeout: float | None = None
+
+
+class MethodTimeout(BaseException):
+    """A method ran past the cell's ``method_timeout`` (a :class:`BaseException`, as
+    KeyboardInterrupt is, so that a method's ``except Exception`` does not swallow it)."""
+
+
+@contextlib.contextmanager
+def time_limit(seconds: float | None) -> Iterator[None]:
+    """Raise :class:`MethodTimeout` in the block once ``seconds`` have passed (None: no limit).
+
+    A ``SIGALRM`` timer: the previous handler and timer are restored when the block ends, so the
+    process's state is as before. The limit is seen when the method runs Python code: a method
+    stuck inside one long compiled call is stopped when that call returns. Needs the main
+    thread (where Hydra's launchers, the kept workers and loky run a job); elsewhere
+    :class:`InputError`.
+    """
+    if not seconds:
+        yield
+        return
+    if threading.current_thread() is not threading.main_thread():
+        raise InputError("method_timeout needs the main thread (a SIGALRM timer)")
+
+    def expire(signum: int, frame: Any) -> None:
+        raise MethodTimeout(f"timed out after {seconds:g} s (method_timeout)")
+
+    previous = signal.signal(signal.SIGALRM, expire)
+    t0 = time.monotonic()
+    outer = signal.setitimer(signal.ITIMER_REAL, float(seconds))
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+        if outer[0]:  # an enclosing timer keeps running, less the time spent here
+            left = max(outer[0] - (time.monotonic() - t0), 1e-3)
+            signal.setitimer(signal.ITIMER_REAL, left, outer[1])
+
+
+def read_only(record: Record, truth: Truth) -> None:
+    """Make the arrays of ``record`` and ``truth`` read-only: every method of a chunk sees the
+    same data, so a method that writes into them raises (its own rows fail) instead of
+    changing what the next method sees and how every method is scored."""
+    for arr in (record.y, record.x, record.r, truth.U, truth.y0, truth.v, truth.sigma2, truth.snr):
+        if isinstance(arr, np.ndarray):
+            arr.flags.writeable = False
 
 
 def _run_chunk(work: _Work, start: int, n: int) -> tuple[list[tidy.Block], dict[str, Any]]:
-    """Runs ``start .. start + n - 1`` of a cell: simulate, identify with every method, score."""
+    """Runs ``start .. start + n - 1`` of a cell: simulate, identify with every method, score.
+
+    Methods see read-only arrays (:func:`read_only`); a method's exception (any but
+    KeyboardInterrupt: ``sys.exit`` and :class:`MethodTimeout` included) fails its own rows."""
     record, truth = simulate(work.scenario, n, np.random.default_rng(work.seq), start=start)
+    read_only(record, truth)
     example: dict[str, Any] = {}
     if work.keep_example and start == 0:
         example = {
@@ -224,8 +284,14 @@ def _run_chunk(work: _Work, start: int, n: int) -> tuple[list[tidy.Block], dict[
     for name, method in work.methods.items():
         t0 = time.perf_counter()
         try:  # a method's failure (or a malformed estimate's) fails its own rows only
-            est = identify(method, record, work.options, truth)
-        except Exception as exc:
+            with time_limit(work.timeout):
+                est = identify(method, record, work.options, truth)
+        except KeyboardInterrupt:
+            raise
+        except MethodTimeout as exc:
+            frames.append(_failed_rows(name, truth, str(exc), work.ids, start))
+            continue
+        except BaseException as exc:  # SystemExit, GeneratorExit ... : the method's, not ours
             frames.append(_failed_rows(name, truth, describe(exc), work.ids, start))
             continue
         seconds = time.perf_counter() - t0

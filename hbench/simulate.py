@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from hbench import kernels
+from hbench import kernels, limits
 from hbench.controllers import Controller
 from hbench.errors import InputError, UnstableError
 from hbench.noise import NoiseModel
@@ -375,6 +375,13 @@ def simulate(
     sc = scenario
     plant, p, K = sc.discrete_plant, sc.p, sc.K
     N = K * p
+    # sizes before any work (hbench.limits): the loop's state dimension, then the arrays
+    limits.check_states(plant, f"the plant of scenario {sc.name!r}")
+    limits.check(
+        f"simulating {runs} run{'s' if runs != 1 else ''} of {N} fast samples",
+        limits.simulation_bytes(N, runs),
+        "shorten the duration or simulate fewer runs at once",
+    )
     rho = closed_loop_radius(plant, sc.controller, p)
     if rho >= 1.0:
         raise UnstableError(

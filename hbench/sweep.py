@@ -30,14 +30,16 @@ Launchers: ``basic`` (default, sequential), ``hydra/launcher=joblib`` (local pro
 from __future__ import annotations
 
 import argparse
+import contextlib
+import errno
 import logging
-import sys
+import os
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-from hbench.errors import InputError
+from hbench.errors import AggregationError, InputError, tell
 from hbench.schema import TIDY_COLUMNS
 
 EXAMPLE = (
@@ -49,6 +51,9 @@ DONE = "DONE"
 ROWS = "rows.parquet"
 #: Environment variable (set through hydra.job.env_set) holding the number of jobs of a sweep.
 JOBS_ENV = "HBENCH_SWEEP_JOBS"
+#: Environment variable (likewise) holding the process id of ``hbench sweep``: a job running in
+#: another process (a launcher's worker) exits when that process dies (:func:`watch_parent`).
+PARENT_ENV = "HBENCH_SWEEP_PARENT"
 #: Sweeps with at most this many jobs are validated combination by combination; larger ones
 #: value by value (every swept value once, the other keys at their first value).
 FULL_CHECK_MAX = 8
@@ -110,7 +115,11 @@ def run(args: argparse.Namespace) -> int:
             raise InputError("--aggregate takes an existing sweep folder and no overrides")
         if not any(root.rglob(DONE)):
             raise InputError(f"no finished jobs (no {DONE} marker) in {root}")
-        aggregate_dir(root)
+        try:
+            aggregate_dir(root)
+        except AggregationError as exc:
+            tell(f"hbench sweep: error: {' '.join(str(exc).split())}")
+            return 1
         return 0
     bad = [o for o in overrides if o.startswith("-")]
     if bad:
@@ -130,6 +139,7 @@ def run(args: argparse.Namespace) -> int:
         argv[:0] = ["--cfg", args.cfg] + (["--resolve"] if args.resolve else [])
     elif n_jobs:
         argv.append(f"++hydra.job.env_set.{JOBS_ENV}='{n_jobs}'")
+        argv.append(f"++hydra.job.env_set.{PARENT_ENV}='{os.getpid()}'")
     return _launch(argv)
 
 
@@ -148,7 +158,7 @@ def _launch(argv: Sequence[str]) -> int:
     try:
         # cells with jobs > 1 that run in this process (the basic launcher) share worker
         # processes kept for the sweep instead of forking them per cell (hbench.workers)
-        with workers.kept_workers():
+        with workers.kept_workers(), _unwritable_is_one_line():
             _run_hydra(
                 args=hargs,
                 args_parser=parser,
@@ -166,6 +176,46 @@ def _launch(argv: Sequence[str]) -> int:
         root.setLevel(saved[0])
         root.handlers[:] = saved[1]
     return 0
+
+
+#: ``errno`` values of a file system that takes no more data.
+_FULL = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EFBIG})
+
+
+@contextlib.contextmanager
+def _unwritable_is_one_line() -> Iterator[None]:
+    """While inside, a sweep that cannot write (a full disk, in a job's files or in Hydra's own)
+    stops with one line on stderr and exit status 2 instead of Hydra's traceback; the job being
+    written is left without its ``DONE`` marker, so resuming computes it.
+
+    Hydra reports an exception of a run through ``hydra._internal.utils.run_and_report`` (a
+    traceback, then exit 1); inside this block that name is wrapped so that such exceptions
+    become ``SystemExit(2)`` first, and restored when the block ends.
+    """
+    from hydra._internal import utils as hydra_utils
+
+    from hbench.errors import OutputError
+
+    original = hydra_utils.run_and_report
+
+    def checked(func: Any) -> Any:
+        try:
+            return func()
+        except OutputError as exc:
+            tell(f"hbench sweep: error: {' '.join(str(exc).split())}")
+            raise SystemExit(2) from None
+        except OSError as exc:
+            if exc.errno not in _FULL:
+                raise
+            where = f"cannot write {exc.filename}" if exc.filename else "cannot write the results"
+            tell(f"hbench sweep: error: {where}: {exc.strerror}")
+            raise SystemExit(2) from None
+
+    hydra_utils.run_and_report = lambda func: original(lambda: checked(func))
+    try:
+        yield
+    finally:
+        hydra_utils.run_and_report = original
 
 
 # --------------------------------------------------------------------------------------------
@@ -368,6 +418,9 @@ def check_config(cfg: Any, where: str = "") -> None:
         value = OmegaConf.select(cfg, key)
         if value < lo:
             raise InputError(f"{key}: must be >= {lo}, got {value}{where}")
+    timeout = data.get("method_timeout")
+    if timeout is not None and not timeout > 0:
+        raise InputError(f"method_timeout: must be > 0 seconds or null, got {timeout}{where}")
     for key in ("scenario.T", "scenario.duration"):
         if not OmegaConf.select(cfg, key) > 0:
             raise InputError(f"{key}: must be > 0, got {OmegaConf.select(cfg, key)}{where}")
@@ -375,7 +428,8 @@ def check_config(cfg: Any, where: str = "") -> None:
     if not methods:
         raise InputError(f"methods: empty{where}")
     try:
-        scenarios.build(config.scenario_spec(data))
+        scenario = scenarios.build(config.scenario_spec(data))
+        _check_size(data, scenario, where)
     except UnstableError:
         pass  # a property of the cell, not a typo: the job records it as failed rows
     except InputError as exc:
@@ -404,6 +458,28 @@ def check_config(cfg: Any, where: str = "") -> None:
         extra_name = next((x for x in ("joblib", "ray", "submitit") if x in module), None)
         hint = f": pip install 'hbench[{extra_name}]'" if extra_name else ""
         raise InputError(f"hydra/launcher: {target} is not installed{hint}") from None
+
+
+def _check_size(data: dict[str, Any], scenario: Any, where: str) -> None:
+    """Refuse a job whose memory would exceed the budget (:mod:`hbench.limits`): its chunks
+    and its tidy rows, which it holds until it writes them."""
+    from hbench import limits, runner
+
+    plant = scenario.discrete_plant
+    limits.check_states(plant, f"the plant{where}")
+    rows_per_run = len(data["methods"]) * (len(runner.QUANTITIES) + len(plant.true_params()))
+    need = limits.job_bytes(
+        scenario.K * scenario.p,
+        int(data["runs"]),
+        int(data["chunk"]),
+        int(data.get("jobs", 1)),
+        rows_per_run,
+    )
+    limits.check(
+        f"a job of {data['runs']} runs x {len(data['methods'])} methods{where}",
+        need,
+        "fewer runs per job, a shorter duration or a smaller chunk",
+    )
 
 
 def _first_line(exc: BaseException) -> str:
@@ -459,22 +535,47 @@ def _hydra_message(exc: BaseException) -> str:
 
 
 def _say(msg: str) -> None:
-    print(f"[hbench sweep] {msg}", file=sys.stderr, flush=True)
+    """A progress line on stderr. Progress is advisory: a closed stderr (``2>&1 | head``) never
+    stops or fails a job."""
+    tell(f"[hbench sweep] {msg}")
+
+
+def read_marker(marker: Path) -> dict[str, Any] | None:
+    """A ``DONE`` marker's content, or None where it cannot be read."""
+    import json
+
+    try:
+        held = json.loads(marker.read_text())
+    except (OSError, ValueError):
+        return None
+    return held if isinstance(held, dict) else None
+
+
+def job_complete(folder: Path, held: dict[str, Any]) -> bool:
+    """Whether the job in ``folder`` (its marker's content ``held``) is done: its cell ran
+    (``status`` ``ok``) and its ``rows.parquet`` is readable with the marker's row count. A job
+    whose cell failed as a whole (an error, MemoryError included) or whose rows are missing or
+    truncated is computed again when the sweep is resumed."""
+    import pyarrow.parquet as pq
+
+    if held.get("status") != "ok":
+        return False
+    try:
+        return pq.read_metadata(folder / ROWS).num_rows == held.get("rows")
+    except Exception:  # missing, truncated, not Parquet
+        return False
 
 
 def find_done(root: Path, run_id: str) -> Path | None:
-    """The folder under ``root`` whose ``DONE`` marker holds ``run_id`` (None if none)."""
-    import json
-
+    """The folder under ``root`` holding the complete job (:func:`job_complete`) of ``run_id``
+    (None if none)."""
     if not root.is_dir():
         return None
     own = root / run_id / DONE  # job folders are named by run id: the usual place
     for marker in [own] if own.is_file() else sorted(root.rglob(DONE)):
-        try:
-            if json.loads(marker.read_text()).get("run_id") == run_id:
-                return marker.parent
-        except (OSError, ValueError):
-            continue
+        held = read_marker(marker)
+        if held and held.get("run_id") == run_id and job_complete(marker.parent, held):
+            return marker.parent
     return None
 
 
@@ -499,8 +600,43 @@ def task(cfg: Any) -> None:
     launcher's worker processes."""
     from hbench.errors import one_line_warnings
 
-    with one_line_warnings("sweep"):
+    parent = os.environ.get(PARENT_ENV, "")
+    with one_line_warnings("sweep"), watch_parent(int(parent) if parent.isdigit() else None):
         _task(cfg)
+
+
+@contextlib.contextmanager
+def watch_parent(pid: int | None) -> Iterator[None]:
+    """While inside, a thread ends this process (exit status 1) as soon as its parent, process
+    ``pid``, ends: a launcher's worker (joblib's loky processes, children of ``hbench sweep``)
+    whose sweep was killed stops its job at once instead of computing it for nobody (the job,
+    left without its ``DONE`` marker, is computed when the sweep is resumed).
+
+    Nothing is watched where ``pid`` is None, this process, or not its parent: the basic
+    launcher (the job runs in ``hbench sweep`` itself), Ray's workers (children of Ray's own
+    daemon) and SLURM jobs (on other machines) are left to their launcher. The parent is
+    polled every 0.2 s (a dead parent's children are handed to another process).
+    """
+    import threading
+
+    if pid is None or pid == os.getpid() or pid != os.getppid():
+        yield
+        return
+    stop = threading.Event()
+
+    def watch() -> None:
+        while not stop.wait(0.2):
+            if os.getppid() != pid:
+                _say(f"hbench sweep (process {pid}) has ended: this worker stops its job")
+                os._exit(1)
+
+    thread = threading.Thread(target=watch, name="hbench-watch-parent", daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join()
 
 
 def _task(cfg: Any) -> None:
@@ -511,7 +647,7 @@ def _task(cfg: Any) -> None:
     from hydra.types import RunMode
     from omegaconf import OmegaConf
 
-    from hbench import config, results
+    from hbench import atomic, config, results
 
     hc = HydraConfig.get()
     out = Path(hc.runtime.output_dir)
@@ -531,8 +667,9 @@ def _task(cfg: Any) -> None:
         _say(f"{job} [{label}]: already done ({done_in.name}), skipped")
         return
     marker = out / DONE
-    if marker.exists():  # another config's marker (same run id: found done above)
-        if not multirun:  # validate refuses this before Hydra starts; never overwrite
+    if marker.exists():  # another config's marker, or this job's incomplete run
+        held = read_marker(marker) or {}
+        if not multirun and held.get("run_id") != rid:  # validate refuses this; never overwrite
             raise InputError(f"{out} holds the finished run of another config")
         marker.unlink()  # a job folder is named by its run id: a stale marker, replaced
     t0 = time.perf_counter()
@@ -541,11 +678,14 @@ def _task(cfg: Any) -> None:
         _say(f"{job} [{label}]: {done}/{runs} runs")
 
     rows, seeds, failure = compute(data, progress=progress)
-    rows.to_parquet(out / ROWS, index=False)
-    (out / "config.yaml").write_text(OmegaConf.to_yaml(OmegaConf.create(data)))
+    # each file whole or not at all, the marker last: a job is done only with readable rows
+    with atomic.replacing(out / ROWS) as tmp:
+        rows.to_parquet(tmp, index=False)
+    atomic.write_text(out / "config.yaml", OmegaConf.to_yaml(OmegaConf.create(data)))
     results.write_provenance(out, config=data, seeds=seeds)
     status = "cell-failed" if failure else "ok"
-    marker.write_text(
+    atomic.write_text(
+        marker,
         json.dumps(
             {
                 "run_id": rid,
@@ -556,7 +696,7 @@ def _task(cfg: Any) -> None:
                 "seconds": round(time.perf_counter() - t0, 3),
             }
         )
-        + "\n"
+        + "\n",
     )
     count = ""
     if multirun:
@@ -633,6 +773,7 @@ def compute(data: dict[str, Any], progress: Any = None) -> tuple[Any, dict[str, 
             chunk=int(data["chunk"]),
             progress=progress,
             jobs=int(data.get("jobs", 1)),
+            method_timeout=data.get("method_timeout"),
         )
         rows, failure = result.rows, ""
     except Exception as exc:  # one bad cell must not stop the sweep

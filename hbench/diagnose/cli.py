@@ -5,10 +5,17 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import warnings
 
 import numpy as np
 
+from hbench import atomic
 from hbench.errors import InputError
+
+#: The longest record diagnosed, in fast samples. The diagnosis holds ~6 KB per fast sample at
+#: its peak and its time grows with the length (200 000 samples: 1.3 GB, 17 s), so a longer
+#: record is refused as soon as it is read (a window of it can be diagnosed).
+MAX_SAMPLES = 250_000
 
 
 def _summary(d) -> str:
@@ -77,12 +84,19 @@ def run(args: argparse.Namespace) -> int:
     reg = registry()
     readers = [reg.get("readers", n) for n in reg.names("readers")] or None
     record = read_record(args.record, p=args.p, readers=readers)
+    if record.n_fast > MAX_SAMPLES:
+        raise InputError(
+            f"{args.record}: {record.n_fast} fast samples, more than the {MAX_SAMPLES} that "
+            f"diagnose takes (~6 KB of memory each at its peak): diagnose a window of the record "
+            "(its rows in a file of their own)"
+        )
     if args.method not in reg.names("identifiers"):
         known = ", ".join(reg.names("identifiers"))
         raise InputError(f"unknown method {args.method!r} (known: {known})")
     notices = [f"notice: {n}" for n in record.meta.get("notices", [])]
     try:
-        with np.errstate(all="ignore"):
+        # warnings are held until the diagnosis ends: a refused record gets its one error line
+        with np.errstate(all="ignore"), warnings.catch_warnings(record=True) as held:
             d = diagnose(
                 record,
                 source=str(args.record),
@@ -94,11 +108,13 @@ def run(args: argparse.Namespace) -> int:
             )
     except InputError:
         # a refused record: its one error line alone (a notice such as "'y' is constant" would
-        # be a second line that the error repeats)
+        # be a second line that the error repeats, a warning a symptom of the same cause)
         raise
     except Exception:
         _print_notices(notices)  # an internal failure: the notices may help explain it
         raise
+    for w in held:  # an accepted record's warnings, shown as the command shows any
+        warnings.showwarning(w.message, w.category, w.filename, w.lineno)
     _print_notices(notices)  # an accepted record's notices, before its summary
     out = d.as_json()
     print(_summary(d), file=info)
@@ -108,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
             print(text)
         else:
             json_path.parent.mkdir(parents=True, exist_ok=True)
-            json_path.write_text(text + "\n")
+            atomic.write_text(json_path, text + "\n")
             print(f"wrote {json_path}", file=info)
     if out_dir is not None:
         from hbench.diagnose.report import write_report

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from hbench import atomic
 from hbench.diagnose import core, stats
 
 FIGURES: tuple[tuple[str, str], ...] = (
@@ -345,10 +346,17 @@ def render_html(d: Any, figs: dict[str, bytes]) -> str:
     return "\n".join(parts)
 
 
+def _md(text: str) -> str:
+    """``text`` as Markdown shows it literally on one line: HTML's ``<``, ``>``, ``&`` escaped
+    (Markdown passes raw HTML through, so a record named ``<script>.csv`` stays text) and ``|``
+    made ``/`` (a table cell)."""
+    return html.escape(" ".join(str(text).split()), quote=False).replace("|", "/")
+
+
 def render_markdown(d: Any, fig_files: dict[str, str]) -> str:
-    lines = [f"# Diagnosis of {Path(str(d.source)).name}", "", "| | |", "| --- | --- |"]
+    lines = [f"# Diagnosis of {_md(Path(str(d.source)).name)}", "", "| | |", "| --- | --- |"]
     for k, v in _summary_rows(d):
-        lines.append(f"| {k} | {v.replace('|', '/')} |")
+        lines.append(f"| {k} | {_md(v)} |")
     lines += ["", "## Evidence", ""]
     rows = _rows(d)
     if rows:
@@ -356,7 +364,7 @@ def render_markdown(d: Any, fig_files: dict[str, str]) -> str:
         lines.append("| " + " | ".join(cols) + " |")
         lines.append("|" + " --- |" * len(cols))
         for r in rows:
-            lines.append("| " + " | ".join(r[c].replace("|", "/") for c in cols) + " |")
+            lines.append("| " + " | ".join(_md(r[c]) for c in cols) + " |")
     lines += ["", "## Figures", ""]
     for name, caption in FIGURES:
         if name in fig_files:
@@ -374,10 +382,10 @@ def write_report(d: Any, out_dir: Path) -> tuple[Path, Path]:
     files = {}
     for name, by_fmt in rendered.items():
         for fmt, data in by_fmt.items():
-            (out_dir / f"fig_{name}.{fmt}").write_bytes(data)
+            atomic.write_bytes(out_dir / f"fig_{name}.{fmt}", data)
         files[name] = f"fig_{name}.png"
     html_path = out_dir / "report.html"
     md_path = out_dir / "report.md"
-    html_path.write_text(render_html(d, figs), encoding="utf-8")
-    md_path.write_text(render_markdown(d, files), encoding="utf-8")
+    atomic.write_text(html_path, render_html(d, figs))
+    atomic.write_text(md_path, render_markdown(d, files))
     return html_path, md_path
