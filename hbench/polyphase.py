@@ -540,6 +540,26 @@ def b_iv(
     return b
 
 
+def v_eiv(dw: np.ndarray, p: int, shift: int, b: np.ndarray, t_min: int) -> np.ndarray:
+    """The generalised prediction error of the static EIV systems (17), Section 6 step (iv):
+    ``V_EIV(l) = (1/K) sum (Delta w(kp + l) - b_l Delta w(kp + 1))^2 / (b_l^2 + 1)`` for
+    ``l = 2 .. nb`` (Sima & Van Huffel 2004, Definition 3), over the numerator's rows
+    (:func:`common_periods`). ``b`` is ``(runs, nb)``; returns ``(runs, nb)`` with column 0
+    (``b_1 = 1``, no equation) ``nan``.
+    """
+    nb = b.shape[1]
+    out = np.full(b.shape, np.nan)
+    if nb < 2:
+        return out
+    k = common_periods(dw, p, shift, t_min, nb)
+    D = period_block(dw, p, k, shift, nb)  # (R, n, nb)
+    d1 = D[:, :, 0]
+    for l in range(2, nb + 1):
+        bl = b[:, l - 1 : l]
+        out[:, l - 1] = np.mean(np.square(D[:, :, l - 1] - bl * d1), axis=1) / (bl[:, 0] ** 2 + 1.0)
+    return out
+
+
 # --- inner signal (eqs. 23-27) -----------------------------------------------------------------
 
 

@@ -90,6 +90,7 @@ TABLE12_RUNS = 20
 ALL_METHODS: tuple[str, ...] = (
     "wang-lsm",
     "wang-iv",
+    "wang",
     "wang-lsm-inv",
     "bai-fu",
     "sun-liu-sano",
@@ -98,7 +99,14 @@ ALL_METHODS: tuple[str, ...] = (
 )
 #: The methods Tables 4 and 5 need.
 TABLE_METHODS: tuple[str, ...] = ("wang-lsm", "wang-iv", "wang-lsm-inv", "oracle", "oracle-inv")
-#: Table 5's columns -> (contract column, method); F_INV's method follows ``Config.f_inv``.
+#: The paper's steps (ii) and (iv) one at a time: ``wang`` with one choice left to the LSM
+#: (names the reproduction gives these variants; ``wang`` makes both choices).
+WANG_VARIANTS: dict[str, dict[str, str]] = {
+    "wang-step-ii": {"select_b": "lsm"},
+    "wang-step-iv": {"select_a": "lsm"},
+}
+#: Table 5's columns -> (contract column, method); F_LSM's method follows ``Config.lsm`` (as
+#: Table 4's LSM rows do), F_INV's ``Config.f_inv``.
 TABLE5_COLUMNS: dict[str, tuple[str, str]] = {
     "F_LSM": ("F", "wang-lsm"),
     "F0_LSM": ("F0", "oracle"),
@@ -340,7 +348,8 @@ class Config:
     replaces the whole reference spec when given. ``fitness`` is the scaling of Table 5
     (``gain``, ``ls``, ``ls-affine``), ``snr`` the definition compared with the SNR column
     (``norm``: ||y0||/||v||, ``power``: its square, ``db``: 20 log10), ``warmup`` seconds simulated
-    before the 500 s record and discarded.
+    before the 500 s record and discarded. ``lsm`` is the method behind Table 4's LSM rows and
+    Table 5's F_LSM (``wang`` or a :data:`WANG_VARIANTS` name for the paper's steps (ii), (iv)).
     """
 
     label: str = "default"
@@ -350,6 +359,7 @@ class Config:
     reference: tuple[tuple[str, Any], ...] | None = None
     pooled: bool = True
     structure: str = "fixed"
+    lsm: str = "wang-lsm"
     f_inv: str = "wang-lsm-inv"
     fitness: str = "gain"
     snr: str = "norm"
@@ -367,6 +377,7 @@ class Config:
             "reference": dict(self.reference) if self.reference else None,
             "pooled": self.pooled,
             "structure": self.structure,
+            "lsm": self.lsm,
             "f_inv": self.f_inv,
             "fitness": self.fitness,
             "snr": self.snr,
@@ -462,7 +473,10 @@ def make_methods(config: Config, names: Sequence[str]) -> dict[str, Any]:
     for name in names:
         if name == "wang-lsm-inv":
             out[name] = _lsm_inverse_class()(pooled=config.pooled)
-        elif name in ("wang-lsm", "wang-iv"):
+        elif name in WANG_VARIANTS:
+            kw = {"pooled": config.pooled, **WANG_VARIANTS[name]}
+            out[name] = methods_from_names(["wang"], {"wang": kw})["wang"]
+        elif name in ("wang-lsm", "wang-iv", "wang"):
             out.update(methods_from_names([name], {name: {"pooled": config.pooled}}))
         else:
             out.update(methods_from_names([name]))
@@ -742,6 +756,8 @@ def compare_tables45(rows: Any, config: Config = Config()) -> Any:
             method = cell.method
             if cell.table == 5 and cell.column == "F" and method == "wang-lsm-inv":
                 method = config.f_inv
+            elif method == "wang-lsm":
+                method = config.lsm
             quantity = fq if cell.table == 5 else cell.column
             mean, std, n = _stats(values.get((cell.row, method, quantity), np.empty(0)))
             cell = replace(cell, method=method)
@@ -804,6 +820,40 @@ def compare_tables12(tab: Mapping[str, Any]) -> Any:
             }
         )
     return pd.DataFrame(out, columns=CSV_COLUMNS)
+
+
+def steps_comparison(rows: Any, comparison: Any, config: Config = Config()) -> tuple[Any, str]:
+    """The paper's steps (ii) and (iv) on Tables 4 and 5: the cells of Table 4's LSM rows and of
+    F_LSM scored with ``wang`` (A by integrated AIC, b by V_EIV) in place of ``wang-lsm``.
+
+    Returns the ``wang`` cells (``reproduce.csv``'s columns) and a text: the share within
+    ``|z| <= 2`` for both methods, and each cell at sigma^2 >= 5e-3 side by side.
+    """
+    import numpy as np
+
+    steps = compare_tables45(rows, replace(config, lsm="wang"))
+    steps = steps[steps["method"] == "wang"].reset_index(drop=True)
+    key = ["table", "row", "column"]
+    base = comparison[comparison["method"] == config.lsm][[*key, "ours", "ours_std", "z"]]
+    m = steps.merge(base, on=key, suffixes=("", "_lsm"), how="left")
+
+    def within(z: Any) -> str:
+        z = np.abs(np.asarray(z, dtype=float))
+        return f"{int(np.sum(z[np.isfinite(z)] <= Z_LIMIT))} of {int(np.isfinite(z).sum())}"
+
+    lines = [
+        "The paper's steps (ii) and (iv) (method wang: A by the integrated AIC, each b_l by "
+        "V_EIV, between the LSM and the IVM) in Table 4's LSM rows and F_LSM: "
+        f"{within(m['z'])} cells within |z| <= {Z_LIMIT:g} (wang-lsm: {within(m['z_lsm'])}).",
+    ]
+    for _, c in m[m["row"].astype(float) >= 5e-3].iterrows():
+        lines.append(
+            f"  {c['column']} @ sigma2={float(c['row']):g}: paper {_fmt_num(c['paper'])}; "
+            f"wang {_fmt_num(c['ours'])} +- {_fmt_num(c['ours_std'])} (z {c['z']:+.1f}); "
+            f"wang-lsm {_fmt_num(c['ours_lsm'])} +- {_fmt_num(c['ours_std_lsm'])} "
+            f"(z {c['z_lsm']:+.1f})"
+        )
+    return steps, "\n".join(lines) + "\n"
 
 
 # --------------------------------------------------------------------------- display tables
@@ -1115,6 +1165,29 @@ def alternatives() -> list[Config]:
         ),
         replace(
             base,
+            label="paper-steps-ii-iv",
+            group="method",
+            description="the LSM rows and F_LSM from wang: A by integrated AIC, b by V_EIV "
+            "between the LSM and the IVM (the paper's steps ii and iv)",
+            lsm="wang",
+        ),
+        replace(
+            base,
+            label="paper-step-ii",
+            group="method",
+            description="step (ii) alone: A by integrated AIC between the LSM and the IVM, b "
+            "from the LSM",
+            lsm="wang-step-ii",
+        ),
+        replace(
+            base,
+            label="paper-step-iv",
+            group="method",
+            description="step (iv) alone: A from the LSM, b_l by V_EIV between the LSM and the IVM",
+            lsm="wang-step-iv",
+        ),
+        replace(
+            base,
             label="f-inv-bai-fu",
             group="method",
             description="F_INV from bai-fu (OLS A and B, direct inverse)",
@@ -1164,7 +1237,7 @@ def _paper_reference() -> dict[str, Any]:
 
 
 #: Alternatives that only post-process the default rows (no new simulation).
-POST_PROCESSED = {"fitness-ls", "snr-power", "snr-db", "f-inv-bai-fu"}
+POST_PROCESSED = {"fitness-ls", "snr-power", "snr-db", "f-inv-bai-fu", "paper-steps-ii-iv"}
 #: What ``--investigate`` cannot test with the existing options.
 UNTESTED = [
     (
@@ -1176,11 +1249,6 @@ UNTESTED = [
         "the paper's own handling of eq. (15) without a real root",
         "implementation detail; it "
         "shapes Table 1's tau = 4 column (an active phase) and cannot be recovered",
-    ),
-    (
-        "b chosen per run between the LSM and the IVM by V_EIV (the paper's step iv)",
-        "not an option of the methods; Table 4's LSM b2 is unbiased at high noise with a "
-        "larger spread than our LSM's, as a per-run mixture of the two estimates would be",
     ),
 ]
 
@@ -1212,12 +1280,17 @@ def spread_ratio(frame: Any) -> float:
     return float(np.exp(np.mean(np.log(o[ok] / p[ok])))) if ok.any() else math.nan
 
 
+#: Methods that can stand in Table 4's LSM rows and Table 5's F_LSM (``Config.lsm``).
+LSM_METHODS = frozenset({"wang-lsm", "wang", *WANG_VARIANTS})
+
+
 def _slots(frame: Any) -> Any:
-    """Cell keys that survive a change of F_INV's method: ``table, row, column, slot``."""
-    slot = frame["method"].where(
-        ~((frame["table"] == 5) & (frame["column"] == "F") & (frame["method"] != "wang-lsm")),
-        "F_INV",
-    )
+    """Cell keys that survive a change of the LSM's or F_INV's method: ``table, row, column,
+    slot``."""
+    lsm = frame["method"].isin(LSM_METHODS)
+    f = (frame["table"] == 5) & (frame["column"] == "F")
+    slot = frame["method"].where(~((frame["table"] == 4) & lsm), "wang-lsm")
+    slot = slot.where(~f, lsm.map({True: "F_LSM", False: "F_INV"}))
     return frame.assign(slot=slot)
 
 
@@ -1322,8 +1395,7 @@ def evaluate(
     """Rows, comparison (Tables 1, 2, 4, 5) and examples of one configuration."""
     import pandas as pd
 
-    if config.f_inv not in methods:
-        methods = (*methods, config.f_inv)
+    methods = (*methods, *(m for m in (config.lsm, config.f_inv) if m not in methods))
     tasks = level_tasks(config, runs, seed, structure, methods)
     results = run_levels(tasks, jobs, progress)
     rows = pd.concat([r[0] for r in results], ignore_index=True)
@@ -1524,6 +1596,7 @@ def reproduce(
         [compare_tables12(tab), compare_tables45(rows, config)], ignore_index=True
     )
     summary = summarise(comparison)
+    steps, steps_text = steps_comparison(rows, comparison, config)
 
     res.write_tables(rows, out_dir)
     comparison.to_csv(out_dir / "reproduce.csv", index=False, float_format="%.10g")
@@ -1535,7 +1608,8 @@ def reproduce(
         f"tau={sel_iv['tau']} nb={sel_iv['nb']}; the paper: na=2 tau=3 nb=2. Monte Carlo "
         f"structure: {structure_mode}."
     )
-    (out_dir / "summary.txt").write_text(summary.text() + selection_text + "\n")
+    steps.to_csv(out_dir / "steps.csv", index=False, float_format="%.10g")
+    (out_dir / "summary.txt").write_text(summary.text() + selection_text + "\n" + steps_text)
     for name in ("table1", "table2"):
         with (out_dir / f"{name}.md").open("a") as fh:
             fh.write(f"\nSelection implied: {selection_text}\n")
@@ -1587,7 +1661,7 @@ def reproduce(
 
         figures.render_many(extra, jobs)
     rows.to_parquet(out_dir / "rows.parquet", index=False)  # last: no fork after pyarrow
-    print(summary.text() + selection_text)
+    print(summary.text() + selection_text + "\n" + steps_text, end="")
     if report:
         print(f"report: {path}")
     print(f"results: {out_dir}")

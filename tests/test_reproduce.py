@@ -187,6 +187,38 @@ def test_compare_tables45_on_hand_made_rows():
     assert alt.loc[(4, 1e-3, "snr", "scenario"), "ours"] == pytest.approx(np.mean(snr**2))
 
 
+def test_lsm_rows_from_the_paper_steps():
+    """Config.lsm puts another method in Table 4's LSM rows and F_LSM; the investigation
+    matches those cells with the defaults' (slot), and steps_comparison scores ``wang``."""
+    a1 = np.array([-1.96, -1.97, -1.95, -1.962])
+    snr = np.full(4, 5.0)
+    rows = pd.concat(
+        [
+            _tidy(5e-3, "wang-lsm", "a1", a1, snr),
+            _tidy(5e-3, "wang", "a1", a1 - 0.01, snr),
+            _tidy(5e-3, "wang-lsm", "fitness", np.full(4, 50.0), snr),
+            _tidy(5e-3, "wang", "fitness", np.full(4, 60.0), snr),
+            _tidy(5e-3, "wang-lsm-inv", "fitness", np.full(4, 40.0), snr),
+        ],
+        ignore_index=True,
+    )
+    before = rp.compare_tables45(rows)
+    after = rp.compare_tables45(rows, rp.Config(lsm="wang"))
+    cells = after.set_index(["table", "row", "column", "method"])
+    assert cells.loc[(4, 5e-3, "a1", "wang"), "ours"] == pytest.approx(a1.mean() - 0.01)
+    assert cells.loc[(5, 5e-3, "F", "wang"), "ours"] == pytest.approx(60.0)
+    assert cells.loc[(5, 5e-3, "F", "wang-lsm-inv"), "ours"] == pytest.approx(40.0)
+    assert not (after["method"] == "wang-lsm").any()
+    row = rp.investigation_row(rp.Config(label="steps", lsm="wang"), before, after)
+    assert row["cells"] == int(np.isfinite(before["z"]).sum())  # every cell matched
+    steps, text = rp.steps_comparison(rows, before)
+    assert set(steps["method"]) == {"wang"} and len(steps) == len(
+        before[before["method"] == "wang-lsm"]
+    )
+    assert "a1 @ sigma2=0.005: paper -1.972; wang -1.97" in text
+    assert "F @ sigma2=0.005: paper 62.17; wang 60 " in text
+
+
 def _header_and_body(md: str) -> tuple[str, str]:
     """The bold header line of a display table's Markdown, and the table below it."""
     header, _, body = md.partition("\n\n")
@@ -363,6 +395,10 @@ def test_summary_line_printed_and_saved(reproduced):
     assert len(s.beyond) == beyond
     assert saved.count(", z = ") == beyond  # every cell beyond is listed
     assert "wang-lsm na=" in saved
+    assert "steps (ii) and (iv)" in saved and "steps (ii) and (iv)" in reproduced[2]
+    steps = pd.read_csv(d / "steps.csv")
+    assert list(steps.columns) == CONTRACT_COLUMNS and set(steps["method"]) == {"wang"}
+    assert len(steps) == int((frame["method"].eq("wang-lsm") & frame["table"].isin([4, 5])).sum())
 
 
 def test_tables_figures_and_provenance(reproduced):
