@@ -712,12 +712,10 @@ def _stats(values: Any) -> tuple[float, float, int]:
     return mean, std, n
 
 
-def snr_values(rows: Any, sigma2: float, definition: str = "norm") -> Any:
-    """Per-run SNR at a level (one value per run), under ``definition``."""
+def _snr_as(per_run: Any, definition: str) -> Any:
+    """Per-run SNRs ``||y0|| / ||v||`` under ``definition`` (``norm``, ``power``, ``db``)."""
     import numpy as np
 
-    sub = rows[np.isclose(rows["sigma2"].astype(float), sigma2, rtol=1e-9, atol=0.0)]
-    per_run = sub.drop_duplicates("run")["snr"].to_numpy(dtype=float)
     if definition == "norm":
         return per_run
     if definition == "power":
@@ -728,26 +726,69 @@ def snr_values(rows: Any, sigma2: float, definition: str = "norm") -> Any:
     raise InputError(f"unknown SNR definition {definition!r} (norm, power, db)")
 
 
+def snr_values(rows: Any, sigma2: float, definition: str = "norm") -> Any:
+    """Per-run SNR at a level (one value per run, in the order the runs first appear), under
+    ``definition``."""
+    import numpy as np
+
+    sub = rows[np.isclose(rows["sigma2"].astype(float), sigma2, rtol=1e-9, atol=0.0)]
+    return _snr_as(sub.drop_duplicates("run")["snr"].to_numpy(dtype=float), definition)
+
+
+@dataclass(frozen=True)
+class LevelValues:
+    """What Tables 4 and 5 read from the tidy rows, gathered in one pass: ``values[(sigma2,
+    method, quantity)]`` the ``ok`` runs' values and ``snr[sigma2]`` the per-run SNRs (every
+    run, in the order the runs first appear), at the paper's levels (matched to rtol 1e-9).
+    Every comparison of one set of rows (the defaults, the steps, the post-processed
+    alternatives) reads the same object instead of filtering the rows again."""
+
+    values: dict[tuple[float, str, str], Any]
+    snr: dict[float, Any]
+
+    @classmethod
+    def of(cls, rows: Any) -> LevelValues:
+        import numpy as np
+
+        sigma2 = rows["sigma2"].to_numpy(dtype=float)
+        value = rows["value"].to_numpy(dtype=float)
+        ok = (rows["status"] == "ok").to_numpy(dtype=bool)
+        levels = sorted({c.row for c in paper_cells() if c.table in (4, 5)})
+        at = {s2: np.isclose(sigma2, s2, rtol=1e-9, atol=0.0) for s2 in levels}
+        values = {}
+        for (method, quantity), idx in rows.groupby(
+            ["method", "quantity"], sort=False
+        ).indices.items():
+            idx = idx[ok[idx]]  # row order, as filtering the frame keeps it
+            for s2 in levels:
+                sel = idx[at[s2][idx]]
+                if sel.size:
+                    values[(s2, str(method), str(quantity))] = value[sel]
+        run = rows["run"].to_numpy()
+        snr_all = rows["snr"].to_numpy(dtype=float)
+        snr = {}
+        for s2 in levels:
+            idx = np.flatnonzero(at[s2])
+            first = np.unique(run[idx], return_index=True)[1]
+            snr[s2] = snr_all[idx[np.sort(first)]]
+        return cls(values, snr)
+
+
 def compare_tables45(rows: Any, config: Config = Config()) -> Any:
-    """``reproduce.csv`` rows of Tables 4 (with its SNR column) and 5 from tidy rows."""
+    """``reproduce.csv`` rows of Tables 4 (with its SNR column) and 5 from tidy rows (or their
+    :class:`LevelValues`, gathered once for several comparisons)."""
     import numpy as np
     import pandas as pd
 
-    ok = rows[rows["status"] == "ok"]
+    lv = rows if isinstance(rows, LevelValues) else LevelValues.of(rows)
+    values = lv.values
     fq = FITNESS_QUANTITY[config.fitness]
-    # values per (level, method, quantity), grouped once (levels matched to the paper's rows)
-    level = np.asarray(ok["sigma2"], dtype=float)
-    values = {}
-    for s2 in {c.row for c in paper_cells() if c.table in (4, 5)}:
-        at = ok[np.isclose(level, s2, rtol=1e-9, atol=0.0)]
-        for (method, quantity), g in at.groupby(["method", "quantity"], sort=False):
-            values[(s2, method, quantity)] = g["value"].to_numpy(dtype=float)
     out = []
     for cell in paper_cells():
         if cell.table not in (4, 5):
             continue
         if cell.column == "snr":
-            vals = snr_values(rows, cell.row, config.snr)
+            vals = _snr_as(lv.snr.get(cell.row, np.empty(0)), config.snr)
             if vals.size and np.all(np.isinf(vals)):
                 mean, std, n = math.inf, math.nan, int(vals.size)
             else:
@@ -823,7 +864,8 @@ def compare_tables12(tab: Mapping[str, Any]) -> Any:
 
 
 def steps_comparison(rows: Any, comparison: Any, config: Config = Config()) -> tuple[Any, str]:
-    """The paper's steps (ii) and (iv) on Tables 4 and 5: the cells of Table 4's LSM rows and of
+    """The paper's steps (ii) and (iv) on Tables 4 and 5 from tidy rows (or their
+    :class:`LevelValues`): the cells of Table 4's LSM rows and of
     F_LSM scored with ``wang`` (A by integrated AIC, b by V_EIV) in place of ``wang-lsm``.
 
     Returns the ``wang`` cells (``reproduce.csv``'s columns) and a text: the share within
@@ -1416,7 +1458,10 @@ def investigate(
     jobs: int,
     out: Path,
 ) -> Any:
-    """Re-run under every alternative; write ``investigation.csv`` and ``investigation.md``."""
+    """Re-run under every alternative; write ``investigation.csv`` and ``investigation.md``.
+
+    ``baseline`` holds the defaults' ``comparison`` and their rows' :class:`LevelValues`
+    (``values``), which the alternatives that only re-score the defaults read."""
     import pandas as pd
 
     from hbench.results import to_markdown
@@ -1427,7 +1472,7 @@ def investigate(
     for k, config in enumerate(alts, 1):
         t0 = time.perf_counter()
         if config.label in POST_PROCESSED:
-            comp = compare_tables45(baseline["rows"], config)
+            comp = compare_tables45(baseline["values"], config)
             comp = pd.concat([before[before["table"].isin([1, 2])], comp], ignore_index=True)
         else:
             res = evaluate(config, runs, seed, structure, jobs)
@@ -1592,11 +1637,12 @@ def reproduce(
     results = run_levels(tasks, jobs, progress, while_waiting=warm_up if report else None)
     rows = pd.concat([r[0] for r in results], ignore_index=True)
     examples = [r[1] for r in results if r[1]]
+    values = LevelValues.of(rows)  # read by every comparison of these rows
     comparison = pd.concat(
-        [compare_tables12(tab), compare_tables45(rows, config)], ignore_index=True
+        [compare_tables12(tab), compare_tables45(values, config)], ignore_index=True
     )
     summary = summarise(comparison)
-    steps, steps_text = steps_comparison(rows, comparison, config)
+    steps, steps_text = steps_comparison(values, comparison, config)
 
     res.write_tables(rows, out_dir)
     comparison.to_csv(out_dir / "reproduce.csv", index=False, float_format="%.10g")
@@ -1648,7 +1694,9 @@ def reproduce(
     res.write_provenance(out_dir, config=config_desc, seeds=seeds)
     if investigate_:
         (out_dir / "investigation").mkdir()
-        investigate({"rows": rows, "comparison": comparison}, runs, seed, structure, jobs, out_dir)
+        investigate(
+            {"values": values, "comparison": comparison}, runs, seed, structure, jobs, out_dir
+        )
     _log("tables written; rendering the figures and the report")
     if report:
         from hbench import report as rep
