@@ -350,6 +350,9 @@ class Config:
     (``norm``: ||y0||/||v||, ``power``: its square, ``db``: 20 log10), ``warmup`` seconds simulated
     before the 500 s record and discarded. ``lsm`` is the method behind Table 4's LSM rows and
     Table 5's F_LSM (``wang`` or a :data:`WANG_VARIANTS` name for the paper's steps (ii), (iv)).
+    ``eq15`` is ``wang-lsm``'s reading of eq. (15) where it has no real root (``clip``,
+    ``real``, ``modulus``, ``zero``: :func:`hbench.polyphase.noise_variance`); ``table2`` how
+    Table 2's rows are read (``as-printed``, or ``swapped``: its l = 1 and l = 2 exchanged).
     """
 
     label: str = "default"
@@ -361,6 +364,8 @@ class Config:
     structure: str = "fixed"
     lsm: str = "wang-lsm"
     f_inv: str = "wang-lsm-inv"
+    eq15: str = "clip"
+    table2: str = "as-printed"
     fitness: str = "gain"
     snr: str = "norm"
     warmup: float = 0.0
@@ -379,6 +384,8 @@ class Config:
             "structure": self.structure,
             "lsm": self.lsm,
             "f_inv": self.f_inv,
+            "eq15": self.eq15,
+            "table2": self.table2,
             "fitness": self.fitness,
             "snr": self.snr,
             "warmup": self.warmup,
@@ -465,6 +472,11 @@ def _lsm_inverse_class() -> type:
     return WangLSMDirectInverse
 
 
+def _lsm_options(config: Config) -> dict[str, Any]:
+    """``wang-lsm``'s options under ``config``."""
+    return {"pooled": config.pooled, "eq15": config.eq15}
+
+
 def make_methods(config: Config, names: Sequence[str]) -> dict[str, Any]:
     """Instantiated methods; the Wang methods with the config's ``pooled``."""
     from hbench.runner import methods_from_names
@@ -476,7 +488,9 @@ def make_methods(config: Config, names: Sequence[str]) -> dict[str, Any]:
         elif name in WANG_VARIANTS:
             kw = {"pooled": config.pooled, **WANG_VARIANTS[name]}
             out[name] = methods_from_names(["wang"], {"wang": kw})["wang"]
-        elif name in ("wang-lsm", "wang-iv", "wang"):
+        elif name == "wang-lsm":
+            out.update(methods_from_names([name], {name: _lsm_options(config)}))
+        elif name in ("wang-iv", "wang"):
             out.update(methods_from_names([name], {name: {"pooled": config.pooled}}))
         else:
             out.update(methods_from_names([name]))
@@ -631,7 +645,7 @@ def run_tables12(config: Config, runs: int, seed: int) -> dict[str, Any]:
     methods = methods_from_names(
         ["wang-lsm", "wang-iv"],
         {
-            "wang-lsm": {"pooled": config.pooled},
+            "wang-lsm": _lsm_options(config),
             "wang-iv": {"pooled": config.pooled, "structure": "iv"},
         },
     )
@@ -827,8 +841,15 @@ def compare_tables45(rows: Any, config: Config = Config()) -> Any:
     return pd.DataFrame(out, columns=CSV_COLUMNS)
 
 
-def compare_tables12(tab: Mapping[str, Any]) -> Any:
-    """``reproduce.csv`` rows of Tables 1 and 2 (run 0 vs the paper; spread over the runs)."""
+#: Table 2's rows read with l = 1 and l = 2 exchanged (``Config.table2 = "swapped"``).
+_SWAPPED_L = {1: 2, 2: 1}
+
+
+def compare_tables12(tab: Mapping[str, Any], config: Config = Config()) -> Any:
+    """``reproduce.csv`` rows of Tables 1 and 2 (run 0 vs the paper; spread over the runs).
+
+    With ``config.table2 == "swapped"`` the paper's Table 2 row l = 1 is compared with our
+    l = 2 and its l = 2 with our l = 1 (the row keeps the paper's l)."""
     import numpy as np
     import pandas as pd
 
@@ -841,7 +862,10 @@ def compare_tables12(tab: Mapping[str, Any]) -> Any:
                 continue
             series = V[:, na_values.index(int(cell.row)), int(cell.column)]
         elif cell.table == 2:
-            series = tab["var_dw"][:, int(cell.row) - 1]
+            l = int(cell.row)
+            if config.table2 == "swapped":
+                l = _SWAPPED_L.get(l, l)
+            series = tab["var_dw"][:, l - 1]
         else:
             continue
         ours = float(series[0])
@@ -1137,10 +1161,48 @@ def alternatives() -> list[Config]:
         ),
         replace(
             base,
+            label="rbs-band-0.25-amplitude-0.9",
+            group="reference",
+            description="RBS band [0, 0.25] x Nyquist, values +-0.9 (fitted to Table 2 read "
+            "swapped and the SNR column)",
+            reference=ref(band=[0.0, 0.25], amplitude=0.9),
+        ),
+        replace(
+            base,
             label="rbs-amplitude-1.6",
             group="reference",
             description="RBS [0, 0.5] with values +-1.6 (diagnostic: power, not spectrum)",
             reference=ref(amplitude=1.6),
+        ),
+        replace(
+            base,
+            label="eq15-real",
+            group="eq. (15) without a real root",
+            description="the complex roots' real part 1/g11 instead of s2 (the discriminant "
+            "clipped in the stable form)",
+            eq15="real",
+        ),
+        replace(
+            base,
+            label="eq15-modulus",
+            group="eq. (15) without a real root",
+            description="the complex roots' modulus sqrt(s2/g11) (compensated residual 2 s2) "
+            "instead of s2",
+            eq15="modulus",
+        ),
+        replace(
+            base,
+            label="eq15-zero",
+            group="eq. (15) without a real root",
+            description="no compensation (sigma^2 = 0) instead of s2",
+            eq15="zero",
+        ),
+        replace(
+            base,
+            label="table2-swapped",
+            group="Table 2",
+            description="Table 2's rows l = 1 and l = 2 read exchanged",
+            table2="swapped",
         ),
         replace(
             base,
@@ -1263,6 +1325,14 @@ def alternatives() -> list[Config]:
         ),
         replace(
             base,
+            label="rbs-band-0.25-amplitude-0.9+table2-swapped",
+            group="combined",
+            description="band [0, 0.25], values +-0.9, and Table 2's l = 1, 2 read exchanged",
+            reference=ref(band=[0.0, 0.25], amplitude=0.9),
+            table2="swapped",
+        ),
+        replace(
+            base,
             label="rbs-band-0.3+warmup-100s",
             group="combined",
             description="band [0, 0.3] and a 100 s warm-up discarded",
@@ -1279,7 +1349,14 @@ def _paper_reference() -> dict[str, Any]:
 
 
 #: Alternatives that only post-process the default rows (no new simulation).
-POST_PROCESSED = {"fitness-ls", "snr-power", "snr-db", "f-inv-bai-fu", "paper-steps-ii-iv"}
+POST_PROCESSED = {
+    "fitness-ls",
+    "snr-power",
+    "snr-db",
+    "f-inv-bai-fu",
+    "paper-steps-ii-iv",
+    "table2-swapped",
+}
 #: What ``--investigate`` cannot test with the existing options.
 UNTESTED = [
     (
@@ -1288,9 +1365,9 @@ UNTESTED = [
         "(the paper's SNR rising faster than 1/sigma at high noise says its loop did too)",
     ),
     (
-        "the paper's own handling of eq. (15) without a real root",
-        "implementation detail; it "
-        "shapes Table 1's tau = 4 column (an active phase) and cannot be recovered",
+        "the RBS generated at the fast rate and sampled by the controller, or switching with "
+        "a fixed probability",
+        "the reference options (band, amplitude, filter; PRBS hold) do not express them",
     ),
 ]
 
@@ -1446,7 +1523,7 @@ def evaluate(
     tab = None
     if with_tables12:
         tab = run_tables12(config, min(runs, TABLE12_RUNS), seed)
-        comp = pd.concat([compare_tables12(tab), comp], ignore_index=True)
+        comp = pd.concat([compare_tables12(tab, config), comp], ignore_index=True)
     return {"rows": rows, "comparison": comp, "examples": examples, "tables12": tab}
 
 
@@ -1460,8 +1537,9 @@ def investigate(
 ) -> Any:
     """Re-run under every alternative; write ``investigation.csv`` and ``investigation.md``.
 
-    ``baseline`` holds the defaults' ``comparison`` and their rows' :class:`LevelValues`
-    (``values``), which the alternatives that only re-score the defaults read."""
+    ``baseline`` holds the defaults' ``comparison``, their rows' :class:`LevelValues`
+    (``values``) and Tables 1-2 (``tables12``), which the alternatives that only re-score the
+    defaults read."""
     import pandas as pd
 
     from hbench.results import to_markdown
@@ -1472,8 +1550,13 @@ def investigate(
     for k, config in enumerate(alts, 1):
         t0 = time.perf_counter()
         if config.label in POST_PROCESSED:
-            comp = compare_tables45(baseline["values"], config)
-            comp = pd.concat([before[before["table"].isin([1, 2])], comp], ignore_index=True)
+            comp = pd.concat(
+                [
+                    compare_tables12(baseline["tables12"], config),
+                    compare_tables45(baseline["values"], config),
+                ],
+                ignore_index=True,
+            )
         else:
             res = evaluate(config, runs, seed, structure, jobs)
             comp = res["comparison"]
@@ -1639,7 +1722,7 @@ def reproduce(
     examples = [r[1] for r in results if r[1]]
     values = LevelValues.of(rows)  # read by every comparison of these rows
     comparison = pd.concat(
-        [compare_tables12(tab), compare_tables45(values, config)], ignore_index=True
+        [compare_tables12(tab, config), compare_tables45(values, config)], ignore_index=True
     )
     summary = summarise(comparison)
     steps, steps_text = steps_comparison(values, comparison, config)
@@ -1695,7 +1778,12 @@ def reproduce(
     if investigate_:
         (out_dir / "investigation").mkdir()
         investigate(
-            {"values": values, "comparison": comparison}, runs, seed, structure, jobs, out_dir
+            {"values": values, "tables12": tab, "comparison": comparison},
+            runs,
+            seed,
+            structure,
+            jobs,
+            out_dir,
         )
     _log("tables written; rendering the figures and the report")
     if report:

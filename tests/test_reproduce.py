@@ -219,6 +219,25 @@ def test_lsm_rows_from_the_paper_steps():
     assert "F @ sigma2=0.005: paper 62.17; wang 60 " in text
 
 
+def test_table2_read_swapped():
+    """Config.table2 = "swapped" compares the paper's l = 1 with our l = 2 and back."""
+    var = np.array([[9.0, 5.0, 1.0, 1.0, 1.0], [8.0, 4.0, 1.1, 0.9, 1.0]]) * 1e-7
+    tab = {
+        "na_values": np.array([1]),
+        "V": {m: np.ones((2, 1, 5)) * 1e-6 for m in ("wang-lsm", "wang-iv")},
+        "var_dw": var,
+    }
+
+    def t2(config):
+        f = rp.compare_tables12(tab, config)
+        return f[f["table"] == 2].set_index("row")["ours"]
+
+    printed, swapped = t2(rp.Config()), t2(rp.Config(table2="swapped"))
+    assert printed[1] == var[0, 0] and printed[2] == var[0, 1]
+    assert swapped[1] == var[0, 1] and swapped[2] == var[0, 0]
+    assert (swapped[[3, 4, 5]] == printed[[3, 4, 5]]).all()
+
+
 def _header_and_body(md: str) -> tuple[str, str]:
     """The bold header line of a display table's Markdown, and the table below it."""
     header, _, body = md.partition("\n\n")

@@ -165,3 +165,50 @@ def test_a1_unbiased_over_100_runs():
     a1 = run_method("wang", record, options=TRUE_STRUCTURE).params()["a1"]
     se = np.std(a1, ddof=1) / np.sqrt(a1.size)
     assert abs(np.mean(a1) - truth.plant.true_params()["a1"]) <= 3 * se
+
+
+def test_eq15_without_a_real_root():
+    """Where g11 s2 > 1 eq. (15) has no real root: clip gives s2 (the stable form with the
+    discriminant clipped), real 1/g11 (the complex roots' real part), modulus sqrt(s2/g11),
+    zero 0; where a root exists every reading gives it."""
+    s2 = np.array([0.5, 4.0, 9.0])
+    g11 = np.array([1.0, 1.0, 4.0])  # g11 s2 = 0.5 (a root), 4, 36 (none)
+    root = 0.5 / (1 + np.sqrt(0.5))
+    np.testing.assert_allclose(pp.noise_variance(s2, g11), [root, 4.0, 9.0])
+    np.testing.assert_allclose(pp.noise_variance(s2, g11, "real"), [root, 1.0, 0.25])
+    np.testing.assert_allclose(pp.noise_variance(s2, g11, "modulus"), [root, 2.0, 1.5])
+    np.testing.assert_allclose(pp.noise_variance(s2, g11, "zero"), [root, 0.0, 0.0])
+    # the complex roots (1 +- i sqrt(g11 s2 - 1)) / g11: real part and modulus
+    r = np.roots([4.0, -2.0, 9.0])
+    np.testing.assert_allclose([r[0].real, abs(r[0])], [0.25, 1.5])
+    with pytest.raises(ValueError, match="no_root"):
+        pp.noise_variance(s2, g11, "largest")
+
+
+def test_eq15_modulus_doubles_the_residual_on_an_active_phase():
+    """On a regression over an active phase (a wrong shift, Table 1's tau = 4 column) eq. (15)
+    has no real root; with the modulus the compensated residual is twice the OLS one."""
+    record, _ = sim(runs=4, seed=5, noise__sigma2=1e-3)
+    dy = pp.delta(record.y)
+    reg = pp.quiet_regression(dy, P, 2, (P,), 4)
+    _, ms = reg.least_squares()
+    g11 = reg.inverse()[:, 0, 0]
+    assert np.all(g11 * ms > 1.0)  # no real root on this phase
+    theta, sigma2 = pp.bias_compensated(reg, "modulus")
+    np.testing.assert_allclose(sigma2, np.sqrt(ms / g11))
+    np.testing.assert_allclose(reg.residual_ms(theta), 2.0 * ms, rtol=1e-9)
+
+
+def test_wang_lsm_eq15_changes_the_tables_only():
+    """``eq15`` acts where (15) has no real root: in the selection table at wrong shifts
+    (Table 1's tau = 4 column) and over-fitted orders, not at the selected structure."""
+    record, _ = sim(runs=3, seed=5, noise__sigma2=1e-3)
+    clip = run_method("wang-lsm", record)
+    mod = run_method("wang-lsm", record, eq15="modulus")
+    assert np.array_equal(clip.a, mod.a) and np.array_equal(clip.b, mod.b)
+    assert np.array_equal(clip.U, mod.U, equal_nan=True)
+    V_clip, V_mod = clip.criteria["V"], mod.criteria["V"]
+    assert not np.allclose(V_clip[:, 1:, 4], V_mod[:, 1:, 4])  # na >= 2 at shift 4
+    np.testing.assert_array_equal(V_clip[:, 1, 3], V_mod[:, 1, 3])  # na = 2, the true shift
+    with pytest.raises(InputError, match="eq15"):
+        run_method("wang-lsm", record, eq15="largest")

@@ -54,6 +54,31 @@ class _Wang(Identifier):
         }
 
 
+def _compensated_real(reg: pp.QuietRegression, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eqs. (14)-(15) with the complex roots' real part where (15) has no real root."""
+    return pp.bias_compensated(reg, "real")
+
+
+def _compensated_modulus(reg: pp.QuietRegression, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eqs. (14)-(15) with the complex roots' modulus where (15) has no real root."""
+    return pp.bias_compensated(reg, "modulus")
+
+
+def _compensated_zero(reg: pp.QuietRegression, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eqs. (14)-(15) with no compensation where (15) has no real root."""
+    return pp.bias_compensated(reg, "zero")
+
+
+#: ``wang-lsm``'s ``eq15`` option -> its denominator fit (module-level functions, so that the
+#: selection tables are shared on a record as for :func:`bias_compensated_fit`)
+EQ15_FITS = {
+    "clip": bias_compensated_fit,
+    "real": _compensated_real,
+    "modulus": _compensated_modulus,
+    "zero": _compensated_zero,
+}
+
+
 class WangLSM(_Wang):
     """Bias-compensated least squares (eqs. 13-15 for A, 18 for B, 27 for U).
 
@@ -66,12 +91,25 @@ class WangLSM(_Wang):
       known, the paper's step (iii) ("taking nb in place of n0_b"); ``pooled=False``: A from
       phase p alone (Section 3.2's ``l = p``). Pooling brings the spreads of Table 4 to the
       paper's (measured: 1.0-1.1x the published std, against 2-4x from phase p alone).
+    * ``eq15``: what eq. (15) gives where it has no real root (``clip``, default; ``real``,
+      ``modulus``, ``zero``: :func:`hbench.polyphase.noise_variance`).
+      It happens in the selection tables, on active phases (wrong shifts: Table 1's tau = 4
+      column) and at over-fitted orders; the fit at the paper's structure has a real root.
 
     Consistent for ARX noise ``e / A(q)``; biased for coloured equation noise (Table 4's LSM rows).
     """
 
     name: ClassVar[str] = "wang-lsm"
     summary: ClassVar[str] = "Wang et al. 2007: bias-compensated LSM (eqs. 14, 15, 18, 27)"
+
+    def __init__(self, eq15: str = "clip", **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        if eq15 not in EQ15_FITS:
+            raise InputError(f"wang-lsm eq15 must be one of {', '.join(EQ15_FITS)}, got {eq15!r}")
+        self.eq15 = eq15
+
+    def options(self) -> dict[str, Any]:
+        return {**super().options(), "eq15": self.eq15}
 
     def identify(
         self, record: Record, options: IdentifyOptions, truth: Truth | None = None
@@ -83,7 +121,7 @@ class WangLSM(_Wang):
             self.name,
             record,
             options,
-            denominator=bias_compensated_fit,
+            denominator=EQ15_FITS[self.eq15],
             numerator=numerator,
             pooled=self.pooled,
             rule=self.rule,
