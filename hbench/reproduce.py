@@ -1546,6 +1546,7 @@ def investigate(
 
     before = baseline["comparison"]
     records = []
+    comps = {}
     alts = alternatives()
     for k, config in enumerate(alts, 1):
         t0 = time.perf_counter()
@@ -1564,6 +1565,7 @@ def investigate(
             out / "investigation" / f"{config.label}.csv", index=False, float_format="%.10g"
         )
         records.append(investigation_row(config, before, comp))
+        comps[config.label] = comp
         _log(
             f"investigate [{k}/{len(alts)}] {config.label}: mean |z| (T4, T5) "
             f"{records[-1]['mean_abs_z_before']:.2f} -> {records[-1]['mean_abs_z_after']:.2f} "
@@ -1571,6 +1573,8 @@ def investigate(
         )
     table = pd.DataFrame(records)
     table.to_csv(out / "investigation.csv", index=False, float_format="%.6g")
+    causes = explained_cells(before, comps)
+    causes.to_csv(out / "investigation_cells.csv", index=False, float_format="%.6g")
     show = table[list(INVESTIGATION_COLUMNS)]
     base_line = table.iloc[0]
     text = [
@@ -1603,8 +1607,39 @@ def investigate(
         "",
     ]
     text += [f"- {name}: {why}" for name, why in UNTESTED]
+    text += [
+        "",
+        f"Cells beyond |z| = {Z_LIMIT:g} under the defaults, and the alternatives that bring "
+        f"each within it (`investigation_cells.csv`): {int((causes['within_by'] != '').sum())} "
+        f"of {len(causes)} have one.",
+        "",
+        to_markdown(causes, floatfmt=".3g") if len(causes) else "(none)",
+    ]
     (out / "investigation.md").write_text("\n".join(text) + "\n")
     return table
+
+
+def explained_cells(before: Any, comps: Mapping[str, Any]) -> Any:
+    """Per cell beyond ``|z| = 2`` under the defaults: the alternatives under which the same
+    cell (its slot: the LSM's or F_INV's method may change) is within, each with its z
+    (``within_by``, ``; ``-separated, empty if none)."""
+    import numpy as np
+    import pandas as pd
+
+    key = ["table", "row", "column", "slot"]
+    b = _slots(before)
+    zb = b["z"].to_numpy(dtype=float)
+    beyond = b[np.isfinite(zb) & (np.abs(zb) > Z_LIMIT)]
+    found: dict[tuple[Any, ...], list[str]] = {tuple(r): [] for r in beyond[key].to_numpy()}
+    for label, comp in comps.items():
+        a = _slots(comp).set_index(key)["z"]
+        for cell in found:
+            z = float(a.get(cell, math.nan))
+            if math.isfinite(z) and abs(z) <= Z_LIMIT:
+                found[cell].append(f"{label} ({z:+.1f})")
+    out = beyond[["table", "row", "column", "method", "z"]].reset_index(drop=True)
+    out["within_by"] = ["; ".join(found[tuple(r)]) for r in beyond[key].to_numpy()]
+    return pd.DataFrame(out)
 
 
 def _best_per_group(table: Any) -> list[str]:

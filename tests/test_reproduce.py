@@ -308,6 +308,15 @@ def test_investigation_row_matches_cells_by_slot():
     assert row["T1_after"] == pytest.approx(4.5)
 
 
+def test_explained_cells_name_the_alternatives_within():
+    before = _frame([10.0, 0.5, -4.0, math.nan])
+    comps = {"a": _frame([1.0, 0.5, -6.0, math.nan]), "b": _frame([-1.5, 3.0, 1.9, 0.0])}
+    out = rp.explained_cells(before, comps)
+    assert list(out["z"]) == [10.0, -4.0]
+    assert list(out["within_by"]) == ["a (+1.0); b (-1.5)", "b (+1.9)"]
+    assert rp.explained_cells(before, {"c": before})["within_by"].tolist() == ["", ""]
+
+
 def test_spread_ratio_is_a_geometric_mean():
     f = pd.DataFrame({"ours_std": [2.0, 0.5, math.nan, 3.0], "paper_std": [1.0, 1.0, 1.0, 0.0]})
     assert rp.spread_ratio(f) == pytest.approx(1.0)
