@@ -677,9 +677,12 @@ def run_levels(
     jobs: int,
     progress: Callable[[LevelTask, float], None] | None = None,
     while_waiting: Callable[[], Any] | None = None,
+    on_result: Callable[[LevelTask, tuple[Any, dict[str, Any], float]], Any] | None = None,
 ) -> list[tuple[Any, dict[str, Any], float]]:
     """Run the tasks (in ``jobs`` forked worker processes when ``jobs > 1``), in task order;
-    ``while_waiting()`` runs in the parent meanwhile (e.g. an import the next step needs)."""
+    ``while_waiting()`` runs in the parent meanwhile (e.g. an import the next step needs), then
+    ``on_result(task, result)`` for each result as it comes in (e.g. a figure of one level
+    drawn while the workers compute the others)."""
     if jobs <= 1 or len(tasks) <= 1:
         if while_waiting:
             while_waiting()
@@ -688,6 +691,8 @@ def run_levels(
             res = run_level(task)
             if progress:
                 progress(task, res[2])
+            if on_result:
+                on_result(task, res)
             out.append(res)
         return out
     import multiprocessing
@@ -704,6 +709,8 @@ def run_levels(
             results[i] = fut.result()
             if progress:
                 progress(tasks[i], results[i][2])
+            if on_result:
+                on_result(tasks[i], results[i])
     return [results[i] for i in range(len(tasks))]
 
 
@@ -1751,8 +1758,26 @@ def reproduce(
 
         figures.pyplot()
 
+    drawn: list[Any] = []
+
+    def draw_example(task: LevelTask, result: tuple[Any, dict[str, Any], float]) -> None:
+        # Figures 4 and 5 need one level's example: drawn here as soon as it is in, while the
+        # workers compute the other levels, instead of with the report's figures at the end
+        if result[1] and not drawn:
+            from hbench import figures
+
+            specs = figures.paper_figure_specs(result[1], out_dir, estimate="wang-lsm")
+            figures.render_many(specs, 1)
+            drawn.append(task.sigma2)
+
     tasks = level_tasks(config, runs, seed, structure, ALL_METHODS)
-    results = run_levels(tasks, jobs, progress, while_waiting=warm_up if report else None)
+    results = run_levels(
+        tasks,
+        jobs,
+        progress,
+        while_waiting=warm_up if report else None,
+        on_result=draw_example,
+    )
     rows = pd.concat([r[0] for r in results], ignore_index=True)
     examples = [r[1] for r in results if r[1]]
     values = LevelValues.of(rows)  # read by every comparison of these rows
@@ -1790,12 +1815,8 @@ def reproduce(
             indent=2,
         )
     )
-    extra = []
     if examples:
         save_examples(out_dir / "examples.npz", examples)
-        from hbench import figures
-
-        extra = figures.paper_figure_specs(examples[0], out_dir, estimate="wang-lsm")
     config_desc = {
         "scenario": scenario_spec(config, TYPICAL_LEVEL),
         "levels": list(LEVELS),
@@ -1824,13 +1845,7 @@ def reproduce(
     if report:
         from hbench import report as rep
 
-        path = rep.build_report(
-            out_dir, out_dir / "report", rows=rows, jobs=jobs, extra_figures=extra
-        )
-    elif extra:
-        from hbench import figures
-
-        figures.render_many(extra, jobs)
+        path = rep.build_report(out_dir, out_dir / "report", rows=rows, jobs=jobs)
     rows.to_parquet(out_dir / "rows.parquet", index=False)  # last: no fork after pyarrow
     print(summary.text() + selection_text + "\n" + steps_text, end="")
     if report:
