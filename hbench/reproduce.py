@@ -16,7 +16,9 @@ What runs (the defaults, and why):
 * Methods: ``wang-lsm`` and ``wang-iv`` with ``pooled=True`` (the denominator from every quiet
   phase nb+1..p: the paper's step (iii) re-estimates A "by taking nb in place of n0_b"; with
   phase p alone the parameter spread is about twice the published one), ``bai-fu``,
-  ``sun-liu-sano`` (a reconstruction), ``oracle``, ``oracle-inv`` and ``wang-lsm-inv`` -- the
+  ``sun-liu-sano`` (a reconstruction), ``oracle``, ``oracle-inv``, ``wang`` (the paper's steps
+  (ii) and (iv): per run, A from the LSM or the IVM by the integrated AIC and each b_l by V_EIV;
+  scored beside the LSM rows in ``steps.csv`` and ``summary.txt``) and ``wang-lsm-inv`` -- the
   LSM's estimates put in the direct inverse A(q)/B(q) y, defined here. Table 5's columns are
   F_LSM = ``wang-lsm``, F0_LSM = ``oracle``, F_INV = ``wang-lsm-inv``, F0_INV = ``oracle-inv``:
   the paper's text compares eq. (27) with the direct inverse for the same estimated G(q)
@@ -39,7 +41,10 @@ sigma^2 = 0) or no spread is known. The summary gives the share of scored cells 
 
 ``--investigate`` re-runs Tables 4 and 5 (and Tables 1 and 2) under alternative conventions and
 writes ``investigation.csv``: which alternative moves which cells toward the paper, and by how
-much (mean |z| per table before and after, and the ratio of our spreads to the published ones).
+much (mean |z| per table before and after, and the ratio of our spreads to the published ones);
+``investigation_cells.csv`` lists, per cell beyond ``|z| = 2`` under the defaults, the
+alternatives under which it is within (a cell near 2 is moved within by many of them by chance;
+a cell far beyond by one, and only one, names its likely cause).
 
 Findings (100 runs, seed 20070601; ``investigation.md`` has the numbers):
 
@@ -54,10 +59,19 @@ Findings (100 runs, seed 20070601; ``investigation.md`` has the numbers):
   quiet phases (step iii) brings Table 4's spreads to 1.1x the paper's (1.0x with the matched
   reference; 2.1-2.3x unpooled), Table 5's to 1.4x (1.1x).
 * F_INV is the LSM's estimates in the direct inverse; bai-fu (OLS) is far below the paper.
-* Remaining: Table 1's tau = 4 column (an active phase; depends on how eq. 15 is solved when it
-  has no real root), Table 2's l = 1, 2 (the paper's ratio 1.88 contradicts (b2/b1)^2 = 0.525,
-  which ours matches), the LSM's b2 at sigma^2 >= 5e-3 (biased toward 0 under this coloured
-  noise; the paper's is not) and with it F_LSM, F_INV there.
+* Table 1's tau = 4 column (an active phase, where eq. 15 has no real root) is the complex
+  roots' modulus ``sqrt(s2 / g11)`` (``eq15-modulus``; complex arithmetic with ``|e|^2`` gives
+  the same V = 2 s2): the four LSM cells na >= 2 move from z = +6..+9 to -0.2..-0.1 and no other
+  cell moves. The default keeps ``clip`` (x = s2): the evidence is this one column.
+* Table 2's l = 1, 2 read exchanged (``table2-swapped``) differ from ours by one factor (~0.67:
+  the paper's Var(Delta U) is smaller). RBS band [0, 0.25] with values +-0.9 matches Table 2 read
+  so (z -0.3, -0.4) and the SNR column, but puts F0 ~10 SE below the paper (the backlash passes
+  less of a smaller reference): no tested reference fits Table 2, the SNR column and F0 together.
+* The paper's step (iv) alone (``paper-step-iv``: b_l by V_EIV, A from the LSM) moves the LSM's b2
+  at sigma^2 = 5e-3, 1e-2 from z = +5.4, +8.0 to -2.5, -3.5 (beyond on the other side); step (ii)
+  (A by the integrated AIC) pulls a1, a2 off the paper's LSM rows at every level (z ~ +-4..8):
+  the paper's LSM rows are not the selected estimates; its b2 may be.
+* Remaining without a cause: F_LSM and F_INV at sigma^2 = 1e-2 (z -5.7, -5.1).
 """
 
 from __future__ import annotations

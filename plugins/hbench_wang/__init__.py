@@ -30,6 +30,12 @@ from hbench.identifiers import (
 from hbench.records import Record, Truth
 
 
+def _check_instruments(method: str, m: int, lag0: int) -> None:
+    """Eq. (20)'s instruments need ``m >= 1`` lags from ``lag0 >= 1`` on."""
+    if int(m) < 1 or int(lag0) < 1:
+        raise InputError(f"{method} needs m >= 1 and lag0 >= 1 (got m={m}, lag0={lag0})")
+
+
 class _Wang(Identifier):
     def __init__(
         self,
@@ -52,6 +58,22 @@ class _Wang(Identifier):
             "tol_tau": self.rule.tol_tau,
             "tol_nb": self.rule.tol_nb,
         }
+
+    def _blind_fit(
+        self, record: Record, options: IdentifyOptions, denominator, numerator, selector=None
+    ) -> Estimate:
+        """:func:`hbench.identifiers.blind_fit` with this method's name, options and rule."""
+        return blind_fit(
+            self.name,
+            record,
+            options,
+            denominator=denominator,
+            numerator=numerator,
+            pooled=self.pooled,
+            rule=self.rule,
+            info=self.options(),
+            selector=selector,
+        )
 
 
 def _compensated_real(reg: pp.QuietRegression, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -117,16 +139,7 @@ class WangLSM(_Wang):
         def numerator(dw, tau, nb, sigma2, idx):
             return pp.b_lsm(dw, record.p, tau, nb, sigma2, t_min=pp.first_valid(dw))
 
-        return blind_fit(
-            self.name,
-            record,
-            options,
-            denominator=EQ15_FITS[self.eq15],
-            numerator=numerator,
-            pooled=self.pooled,
-            rule=self.rule,
-            info=self.options(),
-        )
+        return self._blind_fit(record, options, EQ15_FITS[self.eq15], numerator)
 
 
 class WangIV(_Wang):
@@ -150,8 +163,7 @@ class WangIV(_Wang):
 
     def __init__(self, m: int = 6, lag0: int = 1, structure: str = "lsm", **kwargs: Any) -> None:
         super().__init__(**kwargs)
-        if int(m) < 1 or int(lag0) < 1:
-            raise InputError(f"wang-iv needs m >= 1 and lag0 >= 1 (got m={m}, lag0={lag0})")
+        _check_instruments(self.name, m, lag0)
         if structure not in ("lsm", "iv"):
             raise InputError(f"wang-iv structure must be 'lsm' or 'iv', got {structure!r}")
         self.m, self.lag0, self.structure = int(m), int(lag0), structure
@@ -173,17 +185,8 @@ class WangIV(_Wang):
             t_min = pp.first_valid(dw)
             return pp.b_iv(dw, r[idx], record.p, tau, nb, self.m, t_min, self.lag0)
 
-        return blind_fit(
-            self.name,
-            record,
-            options,
-            denominator=denominator,
-            numerator=numerator,
-            pooled=self.pooled,
-            rule=self.rule,
-            info=self.options(),
-            selector=bias_compensated_fit if self.structure == "lsm" else None,
-        )
+        selector = bias_compensated_fit if self.structure == "lsm" else None
+        return self._blind_fit(record, options, denominator, numerator, selector)
 
 
 #: ``select_a`` / ``select_b`` values: the paper's criterion, or one estimator throughout
@@ -244,8 +247,7 @@ class WangPaper(_Wang):
             raise InputError(
                 f"wang select_b must be one of {', '.join(B_CHOICES)}, got {select_b!r}"
             )
-        if int(m) < 1 or int(lag0) < 1:
-            raise InputError(f"wang needs m >= 1 and lag0 >= 1 (got m={m}, lag0={lag0})")
+        _check_instruments(self.name, m, lag0)
         self.select_a, self.select_b = select_a, select_b
         self.m, self.lag0 = int(m), int(lag0)
 
@@ -288,17 +290,7 @@ class WangPaper(_Wang):
             veiv[0, idx, :nb], veiv[1, idx, :nb] = crit
             return np.where(use, b_iv, b_lsm)
 
-        est = blind_fit(
-            self.name,
-            record,
-            options,
-            denominator=denominator,
-            numerator=numerator,
-            pooled=self.pooled,
-            rule=self.rule,
-            info=self.options(),
-            selector=bias_compensated_fit,
-        )
+        est = self._blind_fit(record, options, denominator, numerator, bias_compensated_fit)
         est.criteria.update(
             a_from_iv=a_from_iv, aic=aic, b_from_iv=b_from_iv, v_eiv_lsm=veiv[0], v_eiv_iv=veiv[1]
         )
