@@ -6,6 +6,10 @@ Targets on the idle 2-core machine: 3 s wall for the defaults, 4 s for ``--runs 
 ``test_cli_startup`` times ``hbench --help`` in the same session: the share of the budget that is
 the interpreter and imports rather than work.
 
+``test_cross_relation_gram[moments]`` against ``[rows]``: ``sun-liu-sano``'s cross-relation Gram
+for 1000 runs of the paper's example, from the channels' moments (as the method computes it)
+against the equations' rows written out (``tests/test_sls.py``'s reference), same session.
+
 Before/after in one session: set ``HBENCH_BENCH_BASELINE`` to the source tree of another
 revision (``git archive REV | tar -x -C DIR`` and its compiled ``hbench/_kernels*.so`` copied
 in); ``test_reproduce[baseline-*]`` then runs that tree with this environment's interpreter in the
@@ -20,8 +24,14 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
+from hbench_sls import cross_relation_gram
 from pytest_benchmark.fixture import BenchmarkFixture
+
+from hbench import polyphase as pp
+from hbench.simulate import Scenario, simulate
+from tests.test_sls import rows_gram
 
 _seconds: dict[str, float] = {}
 BASELINE = os.environ.get("HBENCH_BENCH_BASELINE")
@@ -80,3 +90,27 @@ def test_reproduce(benchmark: BenchmarkFixture, tmp_path: Path, which: str, runs
     if other:
         line += f"; this/baseline {benchmark.extra_info['ratio_to_baseline']:.2f}"
     print(line)
+
+
+@pytest.fixture(scope="module")
+def channels(paper_scenario: Scenario) -> np.ndarray:
+    """The SIMO channels ``W`` of 1000 runs' ``w = A(q) y`` (true A), full periods."""
+    record, truth = simulate(paper_scenario, 1000, 0)
+    a = np.broadcast_to(truth.plant.a, (record.runs, truth.plant.a.size))
+    w = pp.filtered_output(record.y, np.ascontiguousarray(a))
+    sys_ = pp.simo_system(w, record.p, 3, pp.first_valid(w))
+    return sys_.W[:, np.all(sys_.valid, axis=1)]
+
+
+@pytest.mark.parametrize("how", ["moments", "rows"])
+def test_cross_relation_gram(benchmark: BenchmarkFixture, channels: np.ndarray, how: str) -> None:
+    fn = cross_relation_gram if how == "moments" else rows_gram
+    G = benchmark.pedantic(fn, args=(channels,), rounds=3, iterations=1, warmup_rounds=1)
+    _seconds[f"gram-{how}"] = benchmark.stats.stats.mean
+    if how == "rows":  # the same matrices
+        ref = cross_relation_gram(channels)
+        np.testing.assert_allclose(G, ref, rtol=0, atol=1e-12 * np.abs(ref).max())
+        if "gram-moments" in _seconds:
+            benchmark.extra_info["rows_over_moments"] = (
+                _seconds["gram-rows"] / _seconds["gram-moments"]
+            )

@@ -11,7 +11,7 @@ from hbench import polyphase as pp
 from tests.helpers import TRUE_STRUCTURE, run_method, sim
 
 
-def _rows_gram(W: np.ndarray) -> np.ndarray:
+def rows_gram(W: np.ndarray) -> np.ndarray:
     """``X^T X`` with ``X`` the cross-relation rows of every channel pair, formed explicitly."""
     R, n, p = W.shape
     cur, prev = W[:, 1:], W[:, :-1]
@@ -27,9 +27,9 @@ def _rows_gram(W: np.ndarray) -> np.ndarray:
 
 
 @pytest.mark.parametrize("p", [2, 3, 5, 8])
-def test_gram_from_moments_is_the_rows_gram(p):
+def test_gram_from_moments_is_therows_gram(p):
     W = np.random.default_rng(p).standard_normal((4, 200, p))
-    G, ref = cross_relation_gram(W), _rows_gram(W)
+    G, ref = cross_relation_gram(W), rows_gram(W)
     np.testing.assert_allclose(G, ref, rtol=0, atol=1e-12 * np.abs(ref).max())
     np.testing.assert_array_equal(G, G.transpose(0, 2, 1))  # symmetric as built
 
@@ -40,7 +40,7 @@ def test_numerator_unchanged(monkeypatch):
     est = run_method("sun-liu-sano", record, options=TRUE_STRUCTURE)
     import hbench_sls
 
-    monkeypatch.setattr(hbench_sls, "cross_relation_gram", _rows_gram)
+    monkeypatch.setattr(hbench_sls, "cross_relation_gram", rows_gram)
     ref = run_method("sun-liu-sano", record, options=TRUE_STRUCTURE)
     np.testing.assert_allclose(est.b, ref.b, rtol=0, atol=1e-9)
     np.testing.assert_allclose(est.U, ref.U, rtol=1e-8, atol=1e-12)
