@@ -66,7 +66,8 @@ Findings (100 runs, seed 20070601; ``investigation.md`` has the numbers):
 * Table 2's l = 1, 2 read exchanged (``table2-swapped``) differ from ours by one factor (~0.67:
   the paper's Var(Delta U) is smaller). RBS band [0, 0.25] with values +-0.9 matches Table 2 read
   so (z -0.3, -0.4) and the SNR column, but puts F0 ~10 SE below the paper (the backlash passes
-  less of a smaller reference): no tested reference fits Table 2, the SNR column and F0 together.
+  less of a smaller reference): no tested reference fits Table 2, the SNR column and F0 together
+  (the band x amplitude grid: ``docs/experiments/table2-reference.md``).
 * The paper's step (iv) alone (``paper-step-iv``: b_l by V_EIV, A from the LSM) moves the LSM's b2
   at sigma^2 = 5e-3, 1e-2 from z = +5.4, +8.0 to -2.5, -3.5 (beyond on the other side); step (ii)
   (A by the integrated AIC) pulls a1, a2 off the paper's LSM rows at every level (z ~ +-4..8):
