@@ -292,28 +292,54 @@ def ols(reg: QuietRegression) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return theta.copy(), ms.copy(), reg.inverse()[:, 0, 0].copy()
 
 
-def noise_variance(s2: np.ndarray, g11: np.ndarray) -> np.ndarray:
+#: How :func:`noise_variance` reads eq. (15) where it has no real root (``g11 s2 > 1``).
+NO_ROOT = ("clip", "real", "modulus", "zero")
+
+
+def noise_variance(s2: np.ndarray, g11: np.ndarray, no_root: str = "clip") -> np.ndarray:
     """Eq. (15), corrected: sigma^2 from the OLS residual mean square ``s2`` and ``g11``.
 
     The OLS residual mean square tends to ``2 sigma^2 - g11 sigma^4`` (not ``sigma^2 - ...`` as the
     extraction prints), so sigma^2 is the root of ``g11 x^2 - 2 x + s2 = 0`` that tends to ``s2/2``
     as ``g11 -> 0``: ``x = (1 - sqrt(1 - g11 s2)) / g11``, written stably as
-    ``s2 / (1 + sqrt(1 - g11 s2))``. A negative discriminant (a noise realisation far from the
-    asymptote) is clipped to zero, giving ``x = 1/g11``.
+    ``s2 / (1 + sqrt(1 - g11 s2))``.
+
+    Where the discriminant ``1 - g11 s2`` is negative (a noise realisation far from the
+    asymptote, or a regression on an active phase) there is no real root; ``no_root`` says what
+    is taken: ``clip`` (default) the discriminant clipped to zero in the stable form above,
+    ``x = s2``; ``real`` the complex roots' real part ``1/g11`` (the discriminant clipped in the
+    form ``(1 - sqrt(.)) / g11``); ``modulus`` their modulus ``sqrt(s2 / g11)``, which gives the
+    compensated residual ``s2 + g11 |x|^2 = 2 s2`` (as complex arithmetic with ``|e|^2`` would);
+    ``zero`` no compensation, ``x = 0``.
     """
-    disc = np.clip(1.0 - g11 * s2, 0.0, None)
-    return s2 / (1.0 + np.sqrt(disc))
+    disc = 1.0 - g11 * s2
+    x = s2 / (1.0 + np.sqrt(np.clip(disc, 0.0, None)))
+    if no_root == "clip":
+        return x
+    if no_root not in NO_ROOT:
+        raise ValueError(f"no_root must be one of {', '.join(NO_ROOT)}, got {no_root!r}")
+    none = disc < 0.0
+    if not none.any():
+        return x
+    with np.errstate(invalid="ignore", divide="ignore"):
+        other = {
+            "real": lambda: 1.0 / g11,
+            "modulus": lambda: np.sqrt(s2 / g11),
+            "zero": lambda: np.zeros_like(x),
+        }[no_root]()
+    return np.where(none, other, x)
 
 
-def bias_compensated(reg: QuietRegression) -> tuple[np.ndarray, np.ndarray]:
+def bias_compensated(reg: QuietRegression, no_root: str = "clip") -> tuple[np.ndarray, np.ndarray]:
     """Eqs. (14)-(15): ``theta = R^-1 (f - [sigma^2, 0, ..., 0])`` and ``sigma^2``.
 
     ``E{phi(k) Delta e(kp+l)} = [+sigma^2, 0, ..., 0]`` because ``phi_1 = -Delta y(t-1)`` holds
     ``-e(t-1)`` and ``Delta e(t) = e(t) - e(t-1)``; the compensation therefore subtracts it.
+    ``no_root``: eq. (15) without a real root (:func:`noise_variance`).
     """
     Rinv = reg.inverse()
     theta_ols, ms = reg.least_squares()
-    sigma2 = noise_variance(ms, Rinv[:, 0, 0])
+    sigma2 = noise_variance(ms, Rinv[:, 0, 0], no_root)
     theta = theta_ols - Rinv[:, :, 0] * sigma2[:, None]
     return theta, sigma2
 
@@ -538,6 +564,26 @@ def b_iv(
     for l in range(2, nb + 1):
         b[:, l - 1] = np.einsum("rm,rm->r", g, C[:, :, l - 1]) / gg
     return b
+
+
+def v_eiv(dw: np.ndarray, p: int, shift: int, b: np.ndarray, t_min: int) -> np.ndarray:
+    """The generalised prediction error of the static EIV systems (17), Section 6 step (iv):
+    ``V_EIV(l) = (1/K) sum (Delta w(kp + l) - b_l Delta w(kp + 1))^2 / (b_l^2 + 1)`` for
+    ``l = 2 .. nb`` (Sima & Van Huffel 2004, Definition 3), over the numerator's rows
+    (:func:`common_periods`). ``b`` is ``(runs, nb)``; returns ``(runs, nb)`` with column 0
+    (``b_1 = 1``, no equation) ``nan``.
+    """
+    nb = b.shape[1]
+    out = np.full(b.shape, np.nan)
+    if nb < 2:
+        return out
+    k = common_periods(dw, p, shift, t_min, nb)
+    D = period_block(dw, p, k, shift, nb)  # (R, n, nb)
+    d1 = D[:, :, 0]
+    for l in range(2, nb + 1):
+        bl = b[:, l - 1 : l]
+        out[:, l - 1] = np.mean(np.square(D[:, :, l - 1] - bl * d1), axis=1) / (bl[:, 0] ** 2 + 1.0)
+    return out
 
 
 # --- inner signal (eqs. 23-27) -----------------------------------------------------------------

@@ -987,7 +987,7 @@ def build_report(
         for s in slots
     ]
 
-    methods = list(dict.fromkeys(rows["method"]))
+    methods = [str(m) for m in rows["method"].unique()]  # in order of appearance
     recon = [m for m in methods if method_info(m)["reconstruction"]]
     n_cells = rows.drop_duplicates(["nonlinearity", "p", "delay", "sigma2", "snr_target"]).shape[0]
     intro = [

@@ -389,7 +389,7 @@ def plan(rows: pd.DataFrame, out: Path, series_label: Label) -> BeyondSection | 
     BeyondSection or None
         None when no method of :data:`EXTENSIONS_PACKAGE` is among the rows.
     """
-    methods = list(dict.fromkeys(rows["method"]))
+    methods = [str(m) for m in rows["method"].unique()]  # in order of appearance
     ext = [m for m in methods if is_extension(m)]
     if not ext:
         return None

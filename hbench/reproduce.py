@@ -16,7 +16,9 @@ What runs (the defaults, and why):
 * Methods: ``wang-lsm`` and ``wang-iv`` with ``pooled=True`` (the denominator from every quiet
   phase nb+1..p: the paper's step (iii) re-estimates A "by taking nb in place of n0_b"; with
   phase p alone the parameter spread is about twice the published one), ``bai-fu``,
-  ``sun-liu-sano`` (a reconstruction), ``oracle``, ``oracle-inv`` and ``wang-lsm-inv`` -- the
+  ``sun-liu-sano`` (a reconstruction), ``oracle``, ``oracle-inv``, ``wang`` (the paper's steps
+  (ii) and (iv): per run, A from the LSM or the IVM by the integrated AIC and each b_l by V_EIV;
+  scored beside the LSM rows in ``steps.csv`` and ``summary.txt``) and ``wang-lsm-inv`` -- the
   LSM's estimates put in the direct inverse A(q)/B(q) y, defined here. Table 5's columns are
   F_LSM = ``wang-lsm``, F0_LSM = ``oracle``, F_INV = ``wang-lsm-inv``, F0_INV = ``oracle-inv``:
   the paper's text compares eq. (27) with the direct inverse for the same estimated G(q)
@@ -39,7 +41,10 @@ sigma^2 = 0) or no spread is known. The summary gives the share of scored cells 
 
 ``--investigate`` re-runs Tables 4 and 5 (and Tables 1 and 2) under alternative conventions and
 writes ``investigation.csv``: which alternative moves which cells toward the paper, and by how
-much (mean |z| per table before and after, and the ratio of our spreads to the published ones).
+much (mean |z| per table before and after, and the ratio of our spreads to the published ones);
+``investigation_cells.csv`` lists, per cell beyond ``|z| = 2`` under the defaults, the
+alternatives under which it is within (a cell near 2 is moved within by many of them by chance;
+a cell far beyond by one, and only one, names its likely cause).
 
 Findings (100 runs, seed 20070601; ``investigation.md`` has the numbers):
 
@@ -54,10 +59,20 @@ Findings (100 runs, seed 20070601; ``investigation.md`` has the numbers):
   quiet phases (step iii) brings Table 4's spreads to 1.1x the paper's (1.0x with the matched
   reference; 2.1-2.3x unpooled), Table 5's to 1.4x (1.1x).
 * F_INV is the LSM's estimates in the direct inverse; bai-fu (OLS) is far below the paper.
-* Remaining: Table 1's tau = 4 column (an active phase; depends on how eq. 15 is solved when it
-  has no real root), Table 2's l = 1, 2 (the paper's ratio 1.88 contradicts (b2/b1)^2 = 0.525,
-  which ours matches), the LSM's b2 at sigma^2 >= 5e-3 (biased toward 0 under this coloured
-  noise; the paper's is not) and with it F_LSM, F_INV there.
+* Table 1's tau = 4 column (an active phase, where eq. 15 has no real root) is the complex
+  roots' modulus ``sqrt(s2 / g11)`` (``eq15-modulus``; complex arithmetic with ``|e|^2`` gives
+  the same V = 2 s2): the four LSM cells na >= 2 move from z = +6..+9 to -0.2..-0.1 and no other
+  cell moves. The default keeps ``clip`` (x = s2): the evidence is this one column.
+* Table 2's l = 1, 2 read exchanged (``table2-swapped``) differ from ours by one factor (~0.67:
+  the paper's Var(Delta U) is smaller). RBS band [0, 0.25] with values +-0.9 matches Table 2 read
+  so (z -0.3, -0.4) and the SNR column, but puts F0 ~10 SE below the paper (the backlash passes
+  less of a smaller reference): no tested reference fits Table 2, the SNR column and F0 together
+  (the band x amplitude grid: ``docs/experiments/table2-reference.md``).
+* The paper's step (iv) alone (``paper-step-iv``: b_l by V_EIV, A from the LSM) moves the LSM's b2
+  at sigma^2 = 5e-3, 1e-2 from z = +5.4, +8.0 to -2.5, -3.5 (beyond on the other side); step (ii)
+  (A by the integrated AIC) pulls a1, a2 off the paper's LSM rows at every level (z ~ +-4..8):
+  the paper's LSM rows are not the selected estimates; its b2 may be.
+* Remaining without a cause: F_LSM and F_INV at sigma^2 = 1e-2 (z -5.7, -5.1).
 """
 
 from __future__ import annotations
@@ -90,6 +105,7 @@ TABLE12_RUNS = 20
 ALL_METHODS: tuple[str, ...] = (
     "wang-lsm",
     "wang-iv",
+    "wang",
     "wang-lsm-inv",
     "bai-fu",
     "sun-liu-sano",
@@ -98,7 +114,14 @@ ALL_METHODS: tuple[str, ...] = (
 )
 #: The methods Tables 4 and 5 need.
 TABLE_METHODS: tuple[str, ...] = ("wang-lsm", "wang-iv", "wang-lsm-inv", "oracle", "oracle-inv")
-#: Table 5's columns -> (contract column, method); F_INV's method follows ``Config.f_inv``.
+#: The paper's steps (ii) and (iv) one at a time: ``wang`` with one choice left to the LSM
+#: (names the reproduction gives these variants; ``wang`` makes both choices).
+WANG_VARIANTS: dict[str, dict[str, str]] = {
+    "wang-step-ii": {"select_b": "lsm"},
+    "wang-step-iv": {"select_a": "lsm"},
+}
+#: Table 5's columns -> (contract column, method); F_LSM's method follows ``Config.lsm`` (as
+#: Table 4's LSM rows do), F_INV's ``Config.f_inv``.
 TABLE5_COLUMNS: dict[str, tuple[str, str]] = {
     "F_LSM": ("F", "wang-lsm"),
     "F0_LSM": ("F0", "oracle"),
@@ -340,7 +363,11 @@ class Config:
     replaces the whole reference spec when given. ``fitness`` is the scaling of Table 5
     (``gain``, ``ls``, ``ls-affine``), ``snr`` the definition compared with the SNR column
     (``norm``: ||y0||/||v||, ``power``: its square, ``db``: 20 log10), ``warmup`` seconds simulated
-    before the 500 s record and discarded.
+    before the 500 s record and discarded. ``lsm`` is the method behind Table 4's LSM rows and
+    Table 5's F_LSM (``wang`` or a :data:`WANG_VARIANTS` name for the paper's steps (ii), (iv)).
+    ``eq15`` is ``wang-lsm``'s reading of eq. (15) where it has no real root (``clip``,
+    ``real``, ``modulus``, ``zero``: :func:`hbench.polyphase.noise_variance`); ``table2`` how
+    Table 2's rows are read (``as-printed``, or ``swapped``: its l = 1 and l = 2 exchanged).
     """
 
     label: str = "default"
@@ -350,7 +377,10 @@ class Config:
     reference: tuple[tuple[str, Any], ...] | None = None
     pooled: bool = True
     structure: str = "fixed"
+    lsm: str = "wang-lsm"
     f_inv: str = "wang-lsm-inv"
+    eq15: str = "clip"
+    table2: str = "as-printed"
     fitness: str = "gain"
     snr: str = "norm"
     warmup: float = 0.0
@@ -367,7 +397,10 @@ class Config:
             "reference": dict(self.reference) if self.reference else None,
             "pooled": self.pooled,
             "structure": self.structure,
+            "lsm": self.lsm,
             "f_inv": self.f_inv,
+            "eq15": self.eq15,
+            "table2": self.table2,
             "fitness": self.fitness,
             "snr": self.snr,
             "warmup": self.warmup,
@@ -454,6 +487,11 @@ def _lsm_inverse_class() -> type:
     return WangLSMDirectInverse
 
 
+def _lsm_options(config: Config) -> dict[str, Any]:
+    """``wang-lsm``'s options under ``config``."""
+    return {"pooled": config.pooled, "eq15": config.eq15}
+
+
 def make_methods(config: Config, names: Sequence[str]) -> dict[str, Any]:
     """Instantiated methods; the Wang methods with the config's ``pooled``."""
     from hbench.runner import methods_from_names
@@ -462,7 +500,12 @@ def make_methods(config: Config, names: Sequence[str]) -> dict[str, Any]:
     for name in names:
         if name == "wang-lsm-inv":
             out[name] = _lsm_inverse_class()(pooled=config.pooled)
-        elif name in ("wang-lsm", "wang-iv"):
+        elif name in WANG_VARIANTS:
+            kw = {"pooled": config.pooled, **WANG_VARIANTS[name]}
+            out[name] = methods_from_names(["wang"], {"wang": kw})["wang"]
+        elif name == "wang-lsm":
+            out.update(methods_from_names([name], {name: _lsm_options(config)}))
+        elif name in ("wang-iv", "wang"):
             out.update(methods_from_names([name], {name: {"pooled": config.pooled}}))
         else:
             out.update(methods_from_names([name]))
@@ -617,7 +660,7 @@ def run_tables12(config: Config, runs: int, seed: int) -> dict[str, Any]:
     methods = methods_from_names(
         ["wang-lsm", "wang-iv"],
         {
-            "wang-lsm": {"pooled": config.pooled},
+            "wang-lsm": _lsm_options(config),
             "wang-iv": {"pooled": config.pooled, "structure": "iv"},
         },
     )
@@ -649,9 +692,12 @@ def run_levels(
     jobs: int,
     progress: Callable[[LevelTask, float], None] | None = None,
     while_waiting: Callable[[], Any] | None = None,
+    on_result: Callable[[LevelTask, tuple[Any, dict[str, Any], float]], Any] | None = None,
 ) -> list[tuple[Any, dict[str, Any], float]]:
     """Run the tasks (in ``jobs`` forked worker processes when ``jobs > 1``), in task order;
-    ``while_waiting()`` runs in the parent meanwhile (e.g. an import the next step needs)."""
+    ``while_waiting()`` runs in the parent meanwhile (e.g. an import the next step needs), then
+    ``on_result(task, result)`` for each result as it comes in (e.g. a figure of one level
+    drawn while the workers compute the others)."""
     if jobs <= 1 or len(tasks) <= 1:
         if while_waiting:
             while_waiting()
@@ -660,6 +706,8 @@ def run_levels(
             res = run_level(task)
             if progress:
                 progress(task, res[2])
+            if on_result:
+                on_result(task, res)
             out.append(res)
         return out
     import multiprocessing
@@ -676,6 +724,8 @@ def run_levels(
             results[i] = fut.result()
             if progress:
                 progress(tasks[i], results[i][2])
+            if on_result:
+                on_result(tasks[i], results[i])
     return [results[i] for i in range(len(tasks))]
 
 
@@ -698,12 +748,10 @@ def _stats(values: Any) -> tuple[float, float, int]:
     return mean, std, n
 
 
-def snr_values(rows: Any, sigma2: float, definition: str = "norm") -> Any:
-    """Per-run SNR at a level (one value per run), under ``definition``."""
+def _snr_as(per_run: Any, definition: str) -> Any:
+    """Per-run SNRs ``||y0|| / ||v||`` under ``definition`` (``norm``, ``power``, ``db``)."""
     import numpy as np
 
-    sub = rows[np.isclose(rows["sigma2"].astype(float), sigma2, rtol=1e-9, atol=0.0)]
-    per_run = sub.drop_duplicates("run")["snr"].to_numpy(dtype=float)
     if definition == "norm":
         return per_run
     if definition == "power":
@@ -714,26 +762,69 @@ def snr_values(rows: Any, sigma2: float, definition: str = "norm") -> Any:
     raise InputError(f"unknown SNR definition {definition!r} (norm, power, db)")
 
 
+def snr_values(rows: Any, sigma2: float, definition: str = "norm") -> Any:
+    """Per-run SNR at a level (one value per run, in the order the runs first appear), under
+    ``definition``."""
+    import numpy as np
+
+    sub = rows[np.isclose(rows["sigma2"].astype(float), sigma2, rtol=1e-9, atol=0.0)]
+    return _snr_as(sub.drop_duplicates("run")["snr"].to_numpy(dtype=float), definition)
+
+
+@dataclass(frozen=True)
+class LevelValues:
+    """What Tables 4 and 5 read from the tidy rows, gathered in one pass: ``values[(sigma2,
+    method, quantity)]`` the ``ok`` runs' values and ``snr[sigma2]`` the per-run SNRs (every
+    run, in the order the runs first appear), at the paper's levels (matched to rtol 1e-9).
+    Every comparison of one set of rows (the defaults, the steps, the post-processed
+    alternatives) reads the same object instead of filtering the rows again."""
+
+    values: dict[tuple[float, str, str], Any]
+    snr: dict[float, Any]
+
+    @classmethod
+    def of(cls, rows: Any) -> LevelValues:
+        import numpy as np
+
+        sigma2 = rows["sigma2"].to_numpy(dtype=float)
+        value = rows["value"].to_numpy(dtype=float)
+        ok = (rows["status"] == "ok").to_numpy(dtype=bool)
+        levels = sorted({c.row for c in paper_cells() if c.table in (4, 5)})
+        at = {s2: np.isclose(sigma2, s2, rtol=1e-9, atol=0.0) for s2 in levels}
+        values = {}
+        for (method, quantity), idx in rows.groupby(
+            ["method", "quantity"], sort=False
+        ).indices.items():
+            idx = idx[ok[idx]]  # row order, as filtering the frame keeps it
+            for s2 in levels:
+                sel = idx[at[s2][idx]]
+                if sel.size:
+                    values[(s2, str(method), str(quantity))] = value[sel]
+        run = rows["run"].to_numpy()
+        snr_all = rows["snr"].to_numpy(dtype=float)
+        snr = {}
+        for s2 in levels:
+            idx = np.flatnonzero(at[s2])
+            first = np.unique(run[idx], return_index=True)[1]
+            snr[s2] = snr_all[idx[np.sort(first)]]
+        return cls(values, snr)
+
+
 def compare_tables45(rows: Any, config: Config = Config()) -> Any:
-    """``reproduce.csv`` rows of Tables 4 (with its SNR column) and 5 from tidy rows."""
+    """``reproduce.csv`` rows of Tables 4 (with its SNR column) and 5 from tidy rows (or their
+    :class:`LevelValues`, gathered once for several comparisons)."""
     import numpy as np
     import pandas as pd
 
-    ok = rows[rows["status"] == "ok"]
+    lv = rows if isinstance(rows, LevelValues) else LevelValues.of(rows)
+    values = lv.values
     fq = FITNESS_QUANTITY[config.fitness]
-    # values per (level, method, quantity), grouped once (levels matched to the paper's rows)
-    level = np.asarray(ok["sigma2"], dtype=float)
-    values = {}
-    for s2 in {c.row for c in paper_cells() if c.table in (4, 5)}:
-        at = ok[np.isclose(level, s2, rtol=1e-9, atol=0.0)]
-        for (method, quantity), g in at.groupby(["method", "quantity"], sort=False):
-            values[(s2, method, quantity)] = g["value"].to_numpy(dtype=float)
     out = []
     for cell in paper_cells():
         if cell.table not in (4, 5):
             continue
         if cell.column == "snr":
-            vals = snr_values(rows, cell.row, config.snr)
+            vals = _snr_as(lv.snr.get(cell.row, np.empty(0)), config.snr)
             if vals.size and np.all(np.isinf(vals)):
                 mean, std, n = math.inf, math.nan, int(vals.size)
             else:
@@ -742,6 +833,8 @@ def compare_tables45(rows: Any, config: Config = Config()) -> Any:
             method = cell.method
             if cell.table == 5 and cell.column == "F" and method == "wang-lsm-inv":
                 method = config.f_inv
+            elif method == "wang-lsm":
+                method = config.lsm
             quantity = fq if cell.table == 5 else cell.column
             mean, std, n = _stats(values.get((cell.row, method, quantity), np.empty(0)))
             cell = replace(cell, method=method)
@@ -770,8 +863,15 @@ def compare_tables45(rows: Any, config: Config = Config()) -> Any:
     return pd.DataFrame(out, columns=CSV_COLUMNS)
 
 
-def compare_tables12(tab: Mapping[str, Any]) -> Any:
-    """``reproduce.csv`` rows of Tables 1 and 2 (run 0 vs the paper; spread over the runs)."""
+#: Table 2's rows read with l = 1 and l = 2 exchanged (``Config.table2 = "swapped"``).
+_SWAPPED_L = {1: 2, 2: 1}
+
+
+def compare_tables12(tab: Mapping[str, Any], config: Config = Config()) -> Any:
+    """``reproduce.csv`` rows of Tables 1 and 2 (run 0 vs the paper; spread over the runs).
+
+    With ``config.table2 == "swapped"`` the paper's Table 2 row l = 1 is compared with our
+    l = 2 and its l = 2 with our l = 1 (the row keeps the paper's l)."""
     import numpy as np
     import pandas as pd
 
@@ -784,7 +884,10 @@ def compare_tables12(tab: Mapping[str, Any]) -> Any:
                 continue
             series = V[:, na_values.index(int(cell.row)), int(cell.column)]
         elif cell.table == 2:
-            series = tab["var_dw"][:, int(cell.row) - 1]
+            l = int(cell.row)
+            if config.table2 == "swapped":
+                l = _SWAPPED_L.get(l, l)
+            series = tab["var_dw"][:, l - 1]
         else:
             continue
         ours = float(series[0])
@@ -804,6 +907,41 @@ def compare_tables12(tab: Mapping[str, Any]) -> Any:
             }
         )
     return pd.DataFrame(out, columns=CSV_COLUMNS)
+
+
+def steps_comparison(rows: Any, comparison: Any, config: Config = Config()) -> tuple[Any, str]:
+    """The paper's steps (ii) and (iv) on Tables 4 and 5 from tidy rows (or their
+    :class:`LevelValues`): the cells of Table 4's LSM rows and of
+    F_LSM scored with ``wang`` (A by integrated AIC, b by V_EIV) in place of ``wang-lsm``.
+
+    Returns the ``wang`` cells (``reproduce.csv``'s columns) and a text: the share within
+    ``|z| <= 2`` for both methods, and each cell at sigma^2 >= 5e-3 side by side.
+    """
+    import numpy as np
+
+    steps = compare_tables45(rows, replace(config, lsm="wang"))
+    steps = steps[steps["method"] == "wang"].reset_index(drop=True)
+    key = ["table", "row", "column"]
+    base = comparison[comparison["method"] == config.lsm][[*key, "ours", "ours_std", "z"]]
+    m = steps.merge(base, on=key, suffixes=("", "_lsm"), how="left")
+
+    def within(z: Any) -> str:
+        z = np.abs(np.asarray(z, dtype=float))
+        return f"{int(np.sum(z[np.isfinite(z)] <= Z_LIMIT))} of {int(np.isfinite(z).sum())}"
+
+    lines = [
+        "The paper's steps (ii) and (iv) (method wang: A by the integrated AIC, each b_l by "
+        "V_EIV, between the LSM and the IVM) in Table 4's LSM rows and F_LSM: "
+        f"{within(m['z'])} cells within |z| <= {Z_LIMIT:g} (wang-lsm: {within(m['z_lsm'])}).",
+    ]
+    for _, c in m[m["row"].astype(float) >= 5e-3].iterrows():
+        lines.append(
+            f"  {c['column']} @ sigma2={float(c['row']):g}: paper {_fmt_num(c['paper'])}; "
+            f"wang {_fmt_num(c['ours'])} +- {_fmt_num(c['ours_std'])} (z {c['z']:+.1f}); "
+            f"wang-lsm {_fmt_num(c['ours_lsm'])} +- {_fmt_num(c['ours_std_lsm'])} "
+            f"(z {c['z_lsm']:+.1f})"
+        )
+    return steps, "\n".join(lines) + "\n"
 
 
 # --------------------------------------------------------------------------- display tables
@@ -1045,10 +1183,48 @@ def alternatives() -> list[Config]:
         ),
         replace(
             base,
+            label="rbs-band-0.25-amplitude-0.9",
+            group="reference",
+            description="RBS band [0, 0.25] x Nyquist, values +-0.9 (fitted to Table 2 read "
+            "swapped and the SNR column)",
+            reference=ref(band=[0.0, 0.25], amplitude=0.9),
+        ),
+        replace(
+            base,
             label="rbs-amplitude-1.6",
             group="reference",
             description="RBS [0, 0.5] with values +-1.6 (diagnostic: power, not spectrum)",
             reference=ref(amplitude=1.6),
+        ),
+        replace(
+            base,
+            label="eq15-real",
+            group="eq. (15) without a real root",
+            description="the complex roots' real part 1/g11 instead of s2 (the discriminant "
+            "clipped in the stable form)",
+            eq15="real",
+        ),
+        replace(
+            base,
+            label="eq15-modulus",
+            group="eq. (15) without a real root",
+            description="the complex roots' modulus sqrt(s2/g11) (compensated residual 2 s2) "
+            "instead of s2",
+            eq15="modulus",
+        ),
+        replace(
+            base,
+            label="eq15-zero",
+            group="eq. (15) without a real root",
+            description="no compensation (sigma^2 = 0) instead of s2",
+            eq15="zero",
+        ),
+        replace(
+            base,
+            label="table2-swapped",
+            group="Table 2",
+            description="Table 2's rows l = 1 and l = 2 read exchanged",
+            table2="swapped",
         ),
         replace(
             base,
@@ -1115,6 +1291,29 @@ def alternatives() -> list[Config]:
         ),
         replace(
             base,
+            label="paper-steps-ii-iv",
+            group="method",
+            description="the LSM rows and F_LSM from wang: A by integrated AIC, b by V_EIV "
+            "between the LSM and the IVM (the paper's steps ii and iv)",
+            lsm="wang",
+        ),
+        replace(
+            base,
+            label="paper-step-ii",
+            group="method",
+            description="step (ii) alone: A by integrated AIC between the LSM and the IVM, b "
+            "from the LSM",
+            lsm="wang-step-ii",
+        ),
+        replace(
+            base,
+            label="paper-step-iv",
+            group="method",
+            description="step (iv) alone: A from the LSM, b_l by V_EIV between the LSM and the IVM",
+            lsm="wang-step-iv",
+        ),
+        replace(
+            base,
             label="f-inv-bai-fu",
             group="method",
             description="F_INV from bai-fu (OLS A and B, direct inverse)",
@@ -1148,6 +1347,14 @@ def alternatives() -> list[Config]:
         ),
         replace(
             base,
+            label="rbs-band-0.25-amplitude-0.9+table2-swapped",
+            group="combined",
+            description="band [0, 0.25], values +-0.9, and Table 2's l = 1, 2 read exchanged",
+            reference=ref(band=[0.0, 0.25], amplitude=0.9),
+            table2="swapped",
+        ),
+        replace(
+            base,
             label="rbs-band-0.3+warmup-100s",
             group="combined",
             description="band [0, 0.3] and a 100 s warm-up discarded",
@@ -1164,7 +1371,14 @@ def _paper_reference() -> dict[str, Any]:
 
 
 #: Alternatives that only post-process the default rows (no new simulation).
-POST_PROCESSED = {"fitness-ls", "snr-power", "snr-db", "f-inv-bai-fu"}
+POST_PROCESSED = {
+    "fitness-ls",
+    "snr-power",
+    "snr-db",
+    "f-inv-bai-fu",
+    "paper-steps-ii-iv",
+    "table2-swapped",
+}
 #: What ``--investigate`` cannot test with the existing options.
 UNTESTED = [
     (
@@ -1173,14 +1387,9 @@ UNTESTED = [
         "(the paper's SNR rising faster than 1/sigma at high noise says its loop did too)",
     ),
     (
-        "the paper's own handling of eq. (15) without a real root",
-        "implementation detail; it "
-        "shapes Table 1's tau = 4 column (an active phase) and cannot be recovered",
-    ),
-    (
-        "b chosen per run between the LSM and the IVM by V_EIV (the paper's step iv)",
-        "not an option of the methods; Table 4's LSM b2 is unbiased at high noise with a "
-        "larger spread than our LSM's, as a per-run mixture of the two estimates would be",
+        "the RBS generated at the fast rate and sampled by the controller, or switching with "
+        "a fixed probability",
+        "the reference options (band, amplitude, filter; PRBS hold) do not express them",
     ),
 ]
 
@@ -1212,12 +1421,17 @@ def spread_ratio(frame: Any) -> float:
     return float(np.exp(np.mean(np.log(o[ok] / p[ok])))) if ok.any() else math.nan
 
 
+#: Methods that can stand in Table 4's LSM rows and Table 5's F_LSM (``Config.lsm``).
+LSM_METHODS = frozenset({"wang-lsm", "wang", *WANG_VARIANTS})
+
+
 def _slots(frame: Any) -> Any:
-    """Cell keys that survive a change of F_INV's method: ``table, row, column, slot``."""
-    slot = frame["method"].where(
-        ~((frame["table"] == 5) & (frame["column"] == "F") & (frame["method"] != "wang-lsm")),
-        "F_INV",
-    )
+    """Cell keys that survive a change of the LSM's or F_INV's method: ``table, row, column,
+    slot``."""
+    lsm = frame["method"].isin(LSM_METHODS)
+    f = (frame["table"] == 5) & (frame["column"] == "F")
+    slot = frame["method"].where(~((frame["table"] == 4) & lsm), "wang-lsm")
+    slot = slot.where(~f, lsm.map({True: "F_LSM", False: "F_INV"}))
     return frame.assign(slot=slot)
 
 
@@ -1322,8 +1536,7 @@ def evaluate(
     """Rows, comparison (Tables 1, 2, 4, 5) and examples of one configuration."""
     import pandas as pd
 
-    if config.f_inv not in methods:
-        methods = (*methods, config.f_inv)
+    methods = (*methods, *(m for m in (config.lsm, config.f_inv) if m not in methods))
     tasks = level_tasks(config, runs, seed, structure, methods)
     results = run_levels(tasks, jobs, progress)
     rows = pd.concat([r[0] for r in results], ignore_index=True)
@@ -1332,7 +1545,7 @@ def evaluate(
     tab = None
     if with_tables12:
         tab = run_tables12(config, min(runs, TABLE12_RUNS), seed)
-        comp = pd.concat([compare_tables12(tab), comp], ignore_index=True)
+        comp = pd.concat([compare_tables12(tab, config), comp], ignore_index=True)
     return {"rows": rows, "comparison": comp, "examples": examples, "tables12": tab}
 
 
@@ -1344,19 +1557,29 @@ def investigate(
     jobs: int,
     out: Path,
 ) -> Any:
-    """Re-run under every alternative; write ``investigation.csv`` and ``investigation.md``."""
+    """Re-run under every alternative; write ``investigation.csv`` and ``investigation.md``.
+
+    ``baseline`` holds the defaults' ``comparison``, their rows' :class:`LevelValues`
+    (``values``) and Tables 1-2 (``tables12``), which the alternatives that only re-score the
+    defaults read."""
     import pandas as pd
 
     from hbench.results import to_markdown
 
     before = baseline["comparison"]
     records = []
+    comps = {}
     alts = alternatives()
     for k, config in enumerate(alts, 1):
         t0 = time.perf_counter()
         if config.label in POST_PROCESSED:
-            comp = compare_tables45(baseline["rows"], config)
-            comp = pd.concat([before[before["table"].isin([1, 2])], comp], ignore_index=True)
+            comp = pd.concat(
+                [
+                    compare_tables12(baseline["tables12"], config),
+                    compare_tables45(baseline["values"], config),
+                ],
+                ignore_index=True,
+            )
         else:
             res = evaluate(config, runs, seed, structure, jobs)
             comp = res["comparison"]
@@ -1364,6 +1587,7 @@ def investigate(
             out / "investigation" / f"{config.label}.csv", index=False, float_format="%.10g"
         )
         records.append(investigation_row(config, before, comp))
+        comps[config.label] = comp
         _log(
             f"investigate [{k}/{len(alts)}] {config.label}: mean |z| (T4, T5) "
             f"{records[-1]['mean_abs_z_before']:.2f} -> {records[-1]['mean_abs_z_after']:.2f} "
@@ -1371,6 +1595,8 @@ def investigate(
         )
     table = pd.DataFrame(records)
     table.to_csv(out / "investigation.csv", index=False, float_format="%.6g")
+    causes = explained_cells(before, comps)
+    causes.to_csv(out / "investigation_cells.csv", index=False, float_format="%.6g")
     show = table[list(INVESTIGATION_COLUMNS)]
     base_line = table.iloc[0]
     text = [
@@ -1403,8 +1629,39 @@ def investigate(
         "",
     ]
     text += [f"- {name}: {why}" for name, why in UNTESTED]
+    text += [
+        "",
+        f"Cells beyond |z| = {Z_LIMIT:g} under the defaults, and the alternatives that bring "
+        f"each within it (`investigation_cells.csv`): {int((causes['within_by'] != '').sum())} "
+        f"of {len(causes)} have one.",
+        "",
+        to_markdown(causes, floatfmt=".3g") if len(causes) else "(none)",
+    ]
     (out / "investigation.md").write_text("\n".join(text) + "\n")
     return table
+
+
+def explained_cells(before: Any, comps: Mapping[str, Any]) -> Any:
+    """Per cell beyond ``|z| = 2`` under the defaults: the alternatives under which the same
+    cell (its slot: the LSM's or F_INV's method may change) is within, each with its z
+    (``within_by``, ``; ``-separated, empty if none)."""
+    import numpy as np
+    import pandas as pd
+
+    key = ["table", "row", "column", "slot"]
+    b = _slots(before)
+    zb = b["z"].to_numpy(dtype=float)
+    beyond = b[np.isfinite(zb) & (np.abs(zb) > Z_LIMIT)]
+    found: dict[tuple[Any, ...], list[str]] = {tuple(r): [] for r in beyond[key].to_numpy()}
+    for label, comp in comps.items():
+        a = _slots(comp).set_index(key)["z"]
+        for cell in found:
+            z = float(a.get(cell, math.nan))
+            if math.isfinite(z) and abs(z) <= Z_LIMIT:
+                found[cell].append(f"{label} ({z:+.1f})")
+    out = beyond[["table", "row", "column", "method", "z"]].reset_index(drop=True)
+    out["within_by"] = ["; ".join(found[tuple(r)]) for r in beyond[key].to_numpy()]
+    return pd.DataFrame(out)
 
 
 def _best_per_group(table: Any) -> list[str]:
@@ -1516,14 +1773,34 @@ def reproduce(
 
         figures.warm_up()
 
+    drawn: list[Any] = []
+
+    def draw_example(task: LevelTask, result: tuple[Any, dict[str, Any], float]) -> None:
+        # Figures 4 and 5 need one level's example: drawn here as soon as it is in, while the
+        # workers compute the other levels, instead of with the report's figures at the end
+        if result[1] and not drawn:
+            from hbench import figures
+
+            specs = figures.paper_figure_specs(result[1], out_dir, estimate="wang-lsm")
+            figures.render_many(specs, 1)
+            drawn.append(task.sigma2)
+
     tasks = level_tasks(config, runs, seed, structure, ALL_METHODS)
-    results = run_levels(tasks, jobs, progress, while_waiting=warm_up if report else None)
+    results = run_levels(
+        tasks,
+        jobs,
+        progress,
+        while_waiting=warm_up if report else None,
+        on_result=draw_example,
+    )
     rows = pd.concat([r[0] for r in results], ignore_index=True)
     examples = [r[1] for r in results if r[1]]
+    values = LevelValues.of(rows)  # read by every comparison of these rows
     comparison = pd.concat(
-        [compare_tables12(tab), compare_tables45(rows, config)], ignore_index=True
+        [compare_tables12(tab, config), compare_tables45(values, config)], ignore_index=True
     )
     summary = summarise(comparison)
+    steps, steps_text = steps_comparison(values, comparison, config)
 
     res.write_tables(rows, out_dir)
     comparison.to_csv(out_dir / "reproduce.csv", index=False, float_format="%.10g")
@@ -1535,7 +1812,8 @@ def reproduce(
         f"tau={sel_iv['tau']} nb={sel_iv['nb']}; the paper: na=2 tau=3 nb=2. Monte Carlo "
         f"structure: {structure_mode}."
     )
-    (out_dir / "summary.txt").write_text(summary.text() + selection_text + "\n")
+    steps.to_csv(out_dir / "steps.csv", index=False, float_format="%.10g")
+    (out_dir / "summary.txt").write_text(summary.text() + selection_text + "\n" + steps_text)
     for name in ("table1", "table2"):
         with (out_dir / f"{name}.md").open("a") as fh:
             fh.write(f"\nSelection implied: {selection_text}\n")
@@ -1552,12 +1830,8 @@ def reproduce(
             indent=2,
         )
     )
-    extra = []
     if examples:
         save_examples(out_dir / "examples.npz", examples)
-        from hbench import figures
-
-        extra = figures.paper_figure_specs(examples[0], out_dir, estimate="wang-lsm")
     config_desc = {
         "scenario": scenario_spec(config, TYPICAL_LEVEL),
         "levels": list(LEVELS),
@@ -1574,20 +1848,21 @@ def reproduce(
     res.write_provenance(out_dir, config=config_desc, seeds=seeds)
     if investigate_:
         (out_dir / "investigation").mkdir()
-        investigate({"rows": rows, "comparison": comparison}, runs, seed, structure, jobs, out_dir)
+        investigate(
+            {"values": values, "tables12": tab, "comparison": comparison},
+            runs,
+            seed,
+            structure,
+            jobs,
+            out_dir,
+        )
     _log("tables written; rendering the figures and the report")
     if report:
         from hbench import report as rep
 
-        path = rep.build_report(
-            out_dir, out_dir / "report", rows=rows, jobs=jobs, extra_figures=extra
-        )
-    elif extra:
-        from hbench import figures
-
-        figures.render_many(extra, jobs)
+        path = rep.build_report(out_dir, out_dir / "report", rows=rows, jobs=jobs)
     rows.to_parquet(out_dir / "rows.parquet", index=False)  # last: no fork after pyarrow
-    print(summary.text() + selection_text)
+    print(summary.text() + selection_text + "\n" + steps_text, end="")
     if report:
         print(f"report: {path}")
     print(f"results: {out_dir}")

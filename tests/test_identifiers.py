@@ -16,7 +16,7 @@ from hbench.metrics import fitness
 from hbench.plugins import registry
 from tests.helpers import TRUE_STRUCTURE, run_method, sim
 
-BLIND = ["wang-lsm", "wang-iv", "bai-fu", "sun-liu-sano"]
+BLIND = ["wang-lsm", "wang-iv", "wang", "bai-fu", "sun-liu-sano"]
 ALL = [*BLIND, "oracle", "oracle-inv"]
 NONLINEARITIES = {
     "backlash": {"d": 0.1},

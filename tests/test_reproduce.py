@@ -187,6 +187,57 @@ def test_compare_tables45_on_hand_made_rows():
     assert alt.loc[(4, 1e-3, "snr", "scenario"), "ours"] == pytest.approx(np.mean(snr**2))
 
 
+def test_lsm_rows_from_the_paper_steps():
+    """Config.lsm puts another method in Table 4's LSM rows and F_LSM; the investigation
+    matches those cells with the defaults' (slot), and steps_comparison scores ``wang``."""
+    a1 = np.array([-1.96, -1.97, -1.95, -1.962])
+    snr = np.full(4, 5.0)
+    rows = pd.concat(
+        [
+            _tidy(5e-3, "wang-lsm", "a1", a1, snr),
+            _tidy(5e-3, "wang", "a1", a1 - 0.01, snr),
+            _tidy(5e-3, "wang-lsm", "fitness", np.full(4, 50.0), snr),
+            _tidy(5e-3, "wang", "fitness", np.full(4, 60.0), snr),
+            _tidy(5e-3, "wang-lsm-inv", "fitness", np.full(4, 40.0), snr),
+        ],
+        ignore_index=True,
+    )
+    before = rp.compare_tables45(rows)
+    after = rp.compare_tables45(rows, rp.Config(lsm="wang"))
+    cells = after.set_index(["table", "row", "column", "method"])
+    assert cells.loc[(4, 5e-3, "a1", "wang"), "ours"] == pytest.approx(a1.mean() - 0.01)
+    assert cells.loc[(5, 5e-3, "F", "wang"), "ours"] == pytest.approx(60.0)
+    assert cells.loc[(5, 5e-3, "F", "wang-lsm-inv"), "ours"] == pytest.approx(40.0)
+    assert not (after["method"] == "wang-lsm").any()
+    row = rp.investigation_row(rp.Config(label="steps", lsm="wang"), before, after)
+    assert row["cells"] == int(np.isfinite(before["z"]).sum())  # every cell matched
+    steps, text = rp.steps_comparison(rows, before)
+    assert set(steps["method"]) == {"wang"} and len(steps) == len(
+        before[before["method"] == "wang-lsm"]
+    )
+    assert "a1 @ sigma2=0.005: paper -1.972; wang -1.97" in text
+    assert "F @ sigma2=0.005: paper 62.17; wang 60 " in text
+
+
+def test_table2_read_swapped():
+    """Config.table2 = "swapped" compares the paper's l = 1 with our l = 2 and back."""
+    var = np.array([[9.0, 5.0, 1.0, 1.0, 1.0], [8.0, 4.0, 1.1, 0.9, 1.0]]) * 1e-7
+    tab = {
+        "na_values": np.array([1]),
+        "V": {m: np.ones((2, 1, 5)) * 1e-6 for m in ("wang-lsm", "wang-iv")},
+        "var_dw": var,
+    }
+
+    def t2(config):
+        f = rp.compare_tables12(tab, config)
+        return f[f["table"] == 2].set_index("row")["ours"]
+
+    printed, swapped = t2(rp.Config()), t2(rp.Config(table2="swapped"))
+    assert printed[1] == var[0, 0] and printed[2] == var[0, 1]
+    assert swapped[1] == var[0, 1] and swapped[2] == var[0, 0]
+    assert (swapped[[3, 4, 5]] == printed[[3, 4, 5]]).all()
+
+
 def _header_and_body(md: str) -> tuple[str, str]:
     """The bold header line of a display table's Markdown, and the table below it."""
     header, _, body = md.partition("\n\n")
@@ -255,6 +306,15 @@ def test_investigation_row_matches_cells_by_slot():
     assert row["moved_most"] == "T5 bai-fu F@0.001: -3.0->-9.0"
     assert row["T5_before"] == pytest.approx(1.75) and row["T5_after"] == pytest.approx(4.75)
     assert row["T1_after"] == pytest.approx(4.5)
+
+
+def test_explained_cells_name_the_alternatives_within():
+    before = _frame([10.0, 0.5, -4.0, math.nan])
+    comps = {"a": _frame([1.0, 0.5, -6.0, math.nan]), "b": _frame([-1.5, 3.0, 1.9, 0.0])}
+    out = rp.explained_cells(before, comps)
+    assert list(out["z"]) == [10.0, -4.0]
+    assert list(out["within_by"]) == ["a (+1.0); b (-1.5)", "b (+1.9)"]
+    assert rp.explained_cells(before, {"c": before})["within_by"].tolist() == ["", ""]
 
 
 def test_spread_ratio_is_a_geometric_mean():
@@ -363,6 +423,10 @@ def test_summary_line_printed_and_saved(reproduced):
     assert len(s.beyond) == beyond
     assert saved.count(", z = ") == beyond  # every cell beyond is listed
     assert "wang-lsm na=" in saved
+    assert "steps (ii) and (iv)" in saved and "steps (ii) and (iv)" in reproduced[2]
+    steps = pd.read_csv(d / "steps.csv")
+    assert list(steps.columns) == CONTRACT_COLUMNS and set(steps["method"]) == {"wang"}
+    assert len(steps) == int((frame["method"].eq("wang-lsm") & frame["table"].isin([4, 5])).sum())
 
 
 def test_tables_figures_and_provenance(reproduced):

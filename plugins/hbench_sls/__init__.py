@@ -30,6 +30,31 @@ from hbench.identifiers import (
 from hbench.records import Record, Truth
 
 
+def cross_relation_gram(W: np.ndarray) -> np.ndarray:
+    """The Gram matrix ``X^T X`` of the cross-relation equations of the SIMO channels ``W``
+    ``(runs, n, p)`` (consecutive periods), in ``theta = [h_1(0), h_1(1), .., h_p(0), h_p(1)]``.
+
+    For channels ``i < j`` and periods ``n = 1 .. n - 1`` the equation
+    ``h_j(0) w_i(n) + h_j(1) w_i(n-1) - h_i(0) w_j(n) - h_i(1) w_j(n-1) = 0`` is a row ``x`` with
+    ``z_i(n) = [w_i(n), w_i(n-1)]`` in the slots of channel j and ``-z_j(n)`` in those of i. So
+    the ``2 x 2`` block ``(a, b)`` of ``X^T X`` is ``delta_ab T - S_ba`` with
+    ``S_ab = sum_n z_a(n) z_b(n)^T`` (the channels' lag-0 and lag-1 moments) and
+    ``T = sum_c S_cc``: one ``2p x 2p`` product per run instead of ``p (p - 1) / 2`` blocks of
+    rows (the same matrix to rounding).
+    """
+    R, n, p = W.shape
+    Z = np.empty((R, max(n - 1, 0), p, 2))
+    Z[..., 0] = W[:, 1:]
+    Z[..., 1] = W[:, :-1]
+    Z = Z.reshape(R, -1, 2 * p)
+    S = np.matmul(Z.transpose(0, 2, 1), Z).reshape(R, p, 2, p, 2)
+    T = np.einsum("rcicj->rij", S)
+    G = -S.transpose(0, 3, 2, 1, 4)
+    for c in range(p):
+        G[:, c, :, c, :] += T
+    return G.reshape(R, 2 * p, 2 * p)
+
+
 def cross_relation_numerator(
     dw_or_w: np.ndarray, p: int, tau: int, nb: int, t_min: int
 ) -> np.ndarray:
@@ -38,26 +63,14 @@ def cross_relation_numerator(
     For channels ``i < j``:
     ``h_j(0) w_i(n) + h_j(1) w_i(n-1) - h_i(0) w_j(n) - h_i(1) w_j(n-1) = 0`` (noise-free),
     linear in ``theta = [h_1(0), h_1(1), .., h_p(0), h_p(1)]``. ``theta`` is the eigenvector of the
-    smallest eigenvalue of the cross-relation Gram matrix; then ``b_l = h_l(0) - h_{l-1}(0)``
-    averaged with ``h_{l-1}(1) - h_l(1)``, normalised to b1 = 1.
+    smallest eigenvalue of the cross-relation Gram matrix (:func:`cross_relation_gram`); then
+    ``b_l = h_l(0) - h_{l-1}(0)`` averaged with ``h_{l-1}(1) - h_l(1)``, normalised to b1 = 1.
     """
     w = dw_or_w
     sys = pp.simo_system(w, p, tau, t_min)
     full = np.all(sys.valid, axis=1)
-    W = sys.W[:, full]  # (R, n, p): w_i(n)
-    cur, prev = W[:, 1:], W[:, :-1]
-    R = W.shape[0]
-    rows = []
-    for i in range(p):
-        for j in range(i + 1, p):
-            X = np.zeros((R, cur.shape[1], 2 * p))
-            X[:, :, 2 * j] = cur[:, :, i]
-            X[:, :, 2 * j + 1] = prev[:, :, i]
-            X[:, :, 2 * i] = -cur[:, :, j]
-            X[:, :, 2 * i + 1] = -prev[:, :, j]
-            rows.append(X)
-    X = np.concatenate(rows, axis=1)
-    G = np.matmul(X.transpose(0, 2, 1), X)
+    G = cross_relation_gram(sys.W[:, full])
+    R = G.shape[0]
     _, vecs = np.linalg.eigh(G)
     theta = vecs[:, :, 0]
     h0, h1 = theta[:, 0::2], theta[:, 1::2]

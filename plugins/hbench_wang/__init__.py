@@ -4,8 +4,9 @@ Hammerstein systems", Int. J. Control: the bias-compensated LSM and the IVM.
 Both follow the paper's Section 6 algorithm: (i) na and tau from ``V^(p)(na)`` of eq. (19) over
 shifts, (ii) A with nb = n0_b, (iii) nb from ``Var{Delta w^(l)}``, (iv) B, (v) U from eq. (27). The
 selection in (i) and (iii) is made automatic by :class:`hbench.identifiers.SelectionRule`; the
-tables it decided from are kept in ``Estimate.criteria``. Where the paper chooses between the LSM
-and IVM groups by AIC, hbench keeps them as two methods so that both can be compared.
+tables it decided from are kept in ``Estimate.criteria``. ``wang-lsm`` and ``wang-iv`` keep the
+LSM's and the IVM's estimates apart so that both can be compared; ``wang`` makes the paper's
+choices between them, step (ii) for A by the integrated AIC and step (iv) for b by V_EIV.
 """
 
 from __future__ import annotations
@@ -27,6 +28,12 @@ from hbench.identifiers import (
     largest_order,
 )
 from hbench.records import Record, Truth
+
+
+def _check_instruments(method: str, m: int, lag0: int) -> None:
+    """Eq. (20)'s instruments need ``m >= 1`` lags from ``lag0 >= 1`` on."""
+    if int(m) < 1 or int(lag0) < 1:
+        raise InputError(f"{method} needs m >= 1 and lag0 >= 1 (got m={m}, lag0={lag0})")
 
 
 class _Wang(Identifier):
@@ -52,6 +59,47 @@ class _Wang(Identifier):
             "tol_nb": self.rule.tol_nb,
         }
 
+    def _blind_fit(
+        self, record: Record, options: IdentifyOptions, denominator, numerator, selector=None
+    ) -> Estimate:
+        """:func:`hbench.identifiers.blind_fit` with this method's name, options and rule."""
+        return blind_fit(
+            self.name,
+            record,
+            options,
+            denominator=denominator,
+            numerator=numerator,
+            pooled=self.pooled,
+            rule=self.rule,
+            info=self.options(),
+            selector=selector,
+        )
+
+
+def _compensated_real(reg: pp.QuietRegression, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eqs. (14)-(15) with the complex roots' real part where (15) has no real root."""
+    return pp.bias_compensated(reg, "real")
+
+
+def _compensated_modulus(reg: pp.QuietRegression, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eqs. (14)-(15) with the complex roots' modulus where (15) has no real root."""
+    return pp.bias_compensated(reg, "modulus")
+
+
+def _compensated_zero(reg: pp.QuietRegression, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eqs. (14)-(15) with no compensation where (15) has no real root."""
+    return pp.bias_compensated(reg, "zero")
+
+
+#: ``wang-lsm``'s ``eq15`` option -> its denominator fit (module-level functions, so that the
+#: selection tables are shared on a record as for :func:`bias_compensated_fit`)
+EQ15_FITS = {
+    "clip": bias_compensated_fit,
+    "real": _compensated_real,
+    "modulus": _compensated_modulus,
+    "zero": _compensated_zero,
+}
+
 
 class WangLSM(_Wang):
     """Bias-compensated least squares (eqs. 13-15 for A, 18 for B, 27 for U).
@@ -65,6 +113,10 @@ class WangLSM(_Wang):
       known, the paper's step (iii) ("taking nb in place of n0_b"); ``pooled=False``: A from
       phase p alone (Section 3.2's ``l = p``). Pooling brings the spreads of Table 4 to the
       paper's (measured: 1.0-1.1x the published std, against 2-4x from phase p alone).
+    * ``eq15``: what eq. (15) gives where it has no real root (``clip``, default; ``real``,
+      ``modulus``, ``zero``: :func:`hbench.polyphase.noise_variance`).
+      It happens in the selection tables, on active phases (wrong shifts: Table 1's tau = 4
+      column) and at over-fitted orders; the fit at the paper's structure has a real root.
 
     Consistent for ARX noise ``e / A(q)``; biased for coloured equation noise (Table 4's LSM rows).
     """
@@ -72,22 +124,22 @@ class WangLSM(_Wang):
     name: ClassVar[str] = "wang-lsm"
     summary: ClassVar[str] = "Wang et al. 2007: bias-compensated LSM (eqs. 14, 15, 18, 27)"
 
+    def __init__(self, eq15: str = "clip", **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        if eq15 not in EQ15_FITS:
+            raise InputError(f"wang-lsm eq15 must be one of {', '.join(EQ15_FITS)}, got {eq15!r}")
+        self.eq15 = eq15
+
+    def options(self) -> dict[str, Any]:
+        return {**super().options(), "eq15": self.eq15}
+
     def identify(
         self, record: Record, options: IdentifyOptions, truth: Truth | None = None
     ) -> Estimate:
         def numerator(dw, tau, nb, sigma2, idx):
             return pp.b_lsm(dw, record.p, tau, nb, sigma2, t_min=pp.first_valid(dw))
 
-        return blind_fit(
-            self.name,
-            record,
-            options,
-            denominator=bias_compensated_fit,
-            numerator=numerator,
-            pooled=self.pooled,
-            rule=self.rule,
-            info=self.options(),
-        )
+        return self._blind_fit(record, options, EQ15_FITS[self.eq15], numerator)
 
 
 class WangIV(_Wang):
@@ -111,8 +163,7 @@ class WangIV(_Wang):
 
     def __init__(self, m: int = 6, lag0: int = 1, structure: str = "lsm", **kwargs: Any) -> None:
         super().__init__(**kwargs)
-        if int(m) < 1 or int(lag0) < 1:
-            raise InputError(f"wang-iv needs m >= 1 and lag0 >= 1 (got m={m}, lag0={lag0})")
+        _check_instruments(self.name, m, lag0)
         if structure not in ("lsm", "iv"):
             raise InputError(f"wang-iv structure must be 'lsm' or 'iv', got {structure!r}")
         self.m, self.lag0, self.structure = int(m), int(lag0), structure
@@ -134,20 +185,122 @@ class WangIV(_Wang):
             t_min = pp.first_valid(dw)
             return pp.b_iv(dw, r[idx], record.p, tau, nb, self.m, t_min, self.lag0)
 
-        return blind_fit(
-            self.name,
-            record,
-            options,
-            denominator=denominator,
-            numerator=numerator,
-            pooled=self.pooled,
-            rule=self.rule,
-            info=self.options(),
-            selector=bias_compensated_fit if self.structure == "lsm" else None,
+        selector = bias_compensated_fit if self.structure == "lsm" else None
+        return self._blind_fit(record, options, denominator, numerator, selector)
+
+
+#: ``select_a`` / ``select_b`` values: the paper's criterion, or one estimator throughout
+A_CHOICES = ("aic", "lsm", "iv")
+B_CHOICES = ("v-eiv", "lsm", "iv")
+
+
+def _use_iv(choice: str, crit_lsm: np.ndarray, crit_iv: np.ndarray) -> np.ndarray:
+    """Where the IVM's estimate is taken: everywhere (``iv``), nowhere (``lsm``), or where its
+    criterion is strictly smaller than the LSM's (a tie keeps the LSM's)."""
+    if choice == "iv":
+        return np.ones(crit_lsm.shape, bool)
+    if choice == "lsm":
+        return np.zeros(crit_lsm.shape, bool)
+    return crit_iv < crit_lsm
+
+
+class WangPaper(_Wang):
+    """The paper's Section 6 algorithm with its choices between the LSM and the IVM.
+
+    * Steps (i), (iii): the structure from the bias-compensated LSM's tables (as ``wang-lsm``).
+    * Step (ii): A from the LSM (eq. 14) and from the IVM (eq. 20) on the same quiet-phase rows;
+      per run, the one with the smaller integrated AIC, eq. (19) summed over the phases the
+      estimate is fitted on (with ``pooled=True`` the phases ``nb + 1 .. p``: the residual mean
+      square over their stacked rows, times ``1 + 2 na / K``; the penalty is the same for both).
+    * Step (iv): each ``b_l`` (l = 2 .. nb) from the LSM (eq. 18) and from the IVM (eq. 21),
+      both on ``w = A(q) y`` with the A chosen in step (ii); per run and per l, the one with the
+      smaller generalised prediction error ``V_EIV(l)`` (:func:`hbench.polyphase.v_eiv`).
+    * sigma^2 is eq. (15)'s (the LSM's) whichever A is kept; it enters eq. (18) only.
+
+    ``select_a="aic"`` / ``select_b="v-eiv"`` are the paper's steps; ``"lsm"`` or ``"iv"`` take
+    one estimator throughout (``select_a="lsm", select_b="lsm"`` gives ``wang-lsm``'s numbers).
+    What was chosen is kept per run in ``Estimate.criteria``: ``a_from_iv`` (runs,),
+    ``aic`` (runs, 2: LSM, IVM), ``b_from_iv`` and ``v_eiv_lsm``, ``v_eiv_iv`` (runs, nb_max).
+    Instruments as ``wang-iv``'s (``m``, ``lag0``).
+    """
+
+    name: ClassVar[str] = "wang"
+    needs: ClassVar[frozenset[str]] = frozenset({"r"})
+    summary: ClassVar[str] = (
+        "Wang et al. 2007, Section 6: A by integrated AIC and b by V_EIV between LSM and IVM"
+    )
+
+    def __init__(
+        self,
+        select_a: str = "aic",
+        select_b: str = "v-eiv",
+        m: int = 6,
+        lag0: int = 1,
+        **kwargs: Any,
+    ) -> None:
+        super().__init__(**kwargs)
+        if select_a not in A_CHOICES:
+            raise InputError(
+                f"wang select_a must be one of {', '.join(A_CHOICES)}, got {select_a!r}"
+            )
+        if select_b not in B_CHOICES:
+            raise InputError(
+                f"wang select_b must be one of {', '.join(B_CHOICES)}, got {select_b!r}"
+            )
+        _check_instruments(self.name, m, lag0)
+        self.select_a, self.select_b = select_a, select_b
+        self.m, self.lag0 = int(m), int(lag0)
+
+    def options(self) -> dict[str, Any]:
+        return {
+            **super().options(),
+            "select_a": self.select_a,
+            "select_b": self.select_b,
+            "m": self.m,
+            "lag0": self.lag0,
+        }
+
+    def identify(
+        self, record: Record, options: IdentifyOptions, truth: Truth | None = None
+    ) -> Estimate:
+        r, R, p = record.r, record.runs, record.p
+        m = max(self.m, largest_order(options))
+        width = max(options.nb_max, options.nb or 0)
+        a_from_iv = np.zeros(R, bool)
+        aic = np.full((R, 2), np.nan)
+        b_from_iv = np.zeros((R, width), bool)
+        veiv = np.full((2, R, width), np.nan)
+
+        def denominator(reg: pp.QuietRegression, idx: np.ndarray):
+            theta_lsm, sigma2 = pp.bias_compensated(reg)
+            theta_iv = pp.iv(reg, r[idx], m, self.lag0)
+            crit = [pp.aic(reg.residual_ms(t), reg.na, reg.n) for t in (theta_lsm, theta_iv)]
+            use = _use_iv(self.select_a, *crit)
+            a_from_iv[idx], aic[idx, 0], aic[idx, 1] = use, crit[0], crit[1]
+            return np.where(use[:, None], theta_iv, theta_lsm), sigma2
+
+        def numerator(dw, tau, nb, sigma2, idx):
+            t_min = pp.first_valid(dw)
+            b_lsm = pp.b_lsm(dw, p, tau, nb, sigma2, t_min=t_min)
+            b_iv = pp.b_iv(dw, r[idx], p, tau, nb, self.m, t_min, self.lag0)
+            crit = [pp.v_eiv(dw, p, tau, b, t_min) for b in (b_lsm, b_iv)]
+            use = _use_iv(self.select_b, *crit)
+            use[:, 0] = False  # b1 = 1 either way
+            b_from_iv[idx, :nb] = use
+            veiv[0, idx, :nb], veiv[1, idx, :nb] = crit
+            return np.where(use, b_iv, b_lsm)
+
+        est = self._blind_fit(record, options, denominator, numerator, bias_compensated_fit)
+        est.criteria.update(
+            a_from_iv=a_from_iv, aic=aic, b_from_iv=b_from_iv, v_eiv_lsm=veiv[0], v_eiv_iv=veiv[1]
         )
+        est.info["a_from_iv_runs"] = int(a_from_iv.sum())
+        est.info["b_from_iv_runs"] = int(b_from_iv.any(axis=1).sum())
+        return est
 
 
 @hookimpl
 def register_identifiers(register: Register) -> None:
     register(WangLSM.name, WangLSM)
     register(WangIV.name, WangIV)
+    register(WangPaper.name, WangPaper)
