@@ -368,7 +368,7 @@ def test_json_follows_the_contract(run_cli: RunCli, nominal_file: Path, tmp_path
         "criterion",
     ]
     assert d["record"] == str(nominal_file)
-    assert d["criterion"] == "simulation" or d["criterion"].startswith("prediction-")
+    assert d["criterion"] == "simulation"
     assert isinstance(d["p"], int) and d["p"] >= 2 and d["h"] > 0
     assert set(d["nonlinearity"]) == {"class", "params", "scores", "margin", "confident"}
     assert isinstance(d["nonlinearity"]["confident"], bool)

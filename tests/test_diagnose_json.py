@@ -38,7 +38,8 @@ def test_a_nominal_model_no_better_than_the_mean_is_not_none(
     case = generator.draw_case(5000, "none", "linear")  # a calibration seed: diagnosed none
     d = validate.diagnose(generator.simulate_case(case))
     assert d.cause == "none" and d.baseline_fit > 0
-    assert d.why.startswith("no extension gains") and "explains the validation part" in d.why
+    assert d.why.startswith("no fired detector's extension gains")
+    assert "explains the validation part" in d.why
     monkeypatch.setattr(validate, "NONE_MIN_FIT", d.baseline_fit + 1.0)
     again = validate.diagnose(d.ctx.record)
     assert again.cause == "unexplained"

@@ -67,11 +67,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--criterion",
-        default="auto",
+        default="simulation",
         metavar="C",
-        help="validation criterion the cause is chosen on: auto (default: K-step prediction "
-        "for p >= 2 with K the nominal model's dominant time constant, simulation for p = 1), "
-        "simulation, prediction, or prediction-K",
+        help="validation criterion the cause is chosen on: simulation (default), prediction "
+        "(K-step-ahead with K the nominal noise model's dominant time constant) or "
+        "prediction-K",
     )
     p.add_argument(
         "--rule",

@@ -100,25 +100,29 @@ def coarse_grid(cls: str, x: np.ndarray) -> dict[str, np.ndarray]:
     raise ValueError(cls)
 
 
-def fine_grid(cls: str, x: np.ndarray, theta: dict[str, float]) -> dict[str, np.ndarray]:
-    """A finer grid around ``theta``."""
+def fine_grid(
+    cls: str, x: np.ndarray, theta: dict[str, float], spread: float = 1.0
+) -> dict[str, np.ndarray]:
+    """A finer grid around ``theta``; ``spread`` < 1 narrows it by that factor (relative
+    widths ``1.25 ** spread``, offsets and steps times ``spread``)."""
     s = core.scale_of(x)
+    r = 1.25**spread
     if cls == "backlash":
         return _mesh(
-            width=theta["width"] * np.geomspace(0.8, 1.25, 9),
-            g0=np.clip(theta["g0"] + np.linspace(-0.125, 0.125, 5), 0, 1),
+            width=theta["width"] * np.geomspace(1 / r, r, 9),
+            g0=np.clip(theta["g0"] + spread * np.linspace(-0.125, 0.125, 5), 0, 1),
         )
     if cls == "stiction":
         S0, J0 = theta["S"], theta["J"]
         jr0 = J0 / S0 if S0 > 0 else 0.0
         g = _mesh(
-            S=S0 * np.geomspace(0.8, 1.25, 7),
-            jr=np.clip(jr0 + np.linspace(-0.1, 0.1, 5), 0, 1),
+            S=S0 * np.geomspace(1 / r, r, 7),
+            jr=np.clip(jr0 + spread * np.linspace(-0.1, 0.1, 5), 0, 1),
             d0=np.array([theta["d0"]]),
-            g0=np.clip(theta["g0"] + np.linspace(-0.125, 0.125, 5), 0, 1),
+            g0=np.clip(theta["g0"] + spread * np.linspace(-0.125, 0.125, 5), 0, 1),
         )
         return {"S": g["S"], "J": g["S"] * g["jr"], "d0": g["d0"], "g0": g["g0"]}
-    step = 0.05 * s
+    step = 0.05 * s * spread
     if cls == "deadband":
         g = _mesh(
             lower=theta["lower"] + step * np.linspace(-1, 1, 7),
@@ -435,8 +439,8 @@ def fit_equation_error(
         t0, r0, h0 = best_of({k: np.array([v]) for k, v in theta0.items()})
         if r0 < rss:
             theta, rss, th = t0, r0, h0
-    for _ in range(2):
-        t2, r2, h2 = best_of(fine_grid(cls, x, theta))
+    for spread in (1.0, 1.0, 0.2, 0.04):  # then two narrower passes: grid steps of ~0.5 %
+        t2, r2, h2 = best_of(fine_grid(cls, x, theta, spread))
         if r2 < rss:
             theta, rss, th = t2, r2, h2
     return theta, rss, th
