@@ -3,14 +3,13 @@ written to files; the test sees only the file, runs ``hbench diagnose`` through
 :func:`hbench.cli.main` and checks the named cause, the nonlinearity class and, where an effect
 was hidden, a positive validation gain.
 
-Default run: two records per effect and two nominal ones (14). They are the first two cases of
-each effect in the generator's seeds 0, 1, 2, ... (``cases_per_effect(3, 0)``, 21 cases) on
-which the diagnosis is right: seed 5 (time-varying; the nominal model's validation fit is 0 %
-there) and seed 15 (coloured noise, named ``order``) are misses of the method and are left
-out, so this is a regression check, not an accuracy estimate. The ``slow`` run diagnoses 140
-records (seeds 1000-1139, none of them used to calibrate) and prints both confusion matrices.
-A second ``slow`` test scores the stiction verdict of plant logs (``p = 1``) on synthetic plant
-loops with known valves (:func:`hbench.diagnose.generator.loop_cases`).
+Default run: every case of ``cases_per_effect(3, 0)`` (seeds 0-20, three per effect), all scored:
+a regression check against the counts this method reaches there (:data:`DEFAULT_RIGHT`), so a
+drop fails and a gain is reported, never a filtered list of the seeds it gets right. The
+``slow`` run diagnoses 140 records (seeds 1000-1139, none of them used to calibrate) and prints
+both confusion matrices. A second ``slow`` test scores the stiction verdict of plant logs
+(``p = 1``) on synthetic plant loops with known valves
+(:func:`hbench.diagnose.generator.loop_cases`).
 """
 
 from __future__ import annotations
@@ -26,15 +25,11 @@ from hbench.diagnose import calibrate, generator
 
 RunCli = Callable[[list[str]], tuple[int, str, str]]
 
-#: Seeds of the default run (see the module notes): two per effect.
-DEFAULT_SEEDS = (0, 7, 1, 8, 2, 9, 3, 10, 4, 11, 12, 19, 6, 13)
-
-
-def _case(seed: int) -> generator.Case:
-    """The case of ``seed`` in ``cases_per_effect(.., start=0)``."""
-    effect = generator.EFFECTS[seed % len(generator.EFFECTS)]
-    cls = generator.CLASSES[seed % len(generator.CLASSES)]
-    return generator.draw_case(seed, effect, cls)
+#: The default run's cases: ``cases_per_effect(3, 0)``, seeds 0-20.
+DEFAULT_CASES = 21
+#: What the diagnosis gets right on them, as measured: causes, classes, and positive gains on
+#: the 18 records with an effect.
+DEFAULT_RIGHT = {"cause": 20, "class": 21, "gain": 18}
 
 
 def _diagnose_file(run_cli: RunCli, path: Path, tmp: Path) -> dict:
@@ -44,57 +39,54 @@ def _diagnose_file(run_cli: RunCli, path: Path, tmp: Path) -> dict:
     return json.loads(out.read_text())
 
 
-def test_default_seeds_cover_every_effect_twice() -> None:
-    effects = [_case(s).effect for s in DEFAULT_SEEDS]
+def test_default_cases_cover_every_effect_three_times() -> None:
+    effects = [c.effect for c in generator.cases_per_effect(3, 0)]
+    assert len(effects) == DEFAULT_CASES
     for e in generator.EFFECTS:
-        assert effects.count(e) >= 2
+        assert effects.count(e) == 3
 
 
-@pytest.mark.parametrize("seed", DEFAULT_SEEDS)
-def test_hidden_effect_is_found(run_cli: RunCli, tmp_path: Path, seed: int) -> None:
-    case = _case(seed)
-    path = generator.write_case(case, tmp_path)
-    d = _diagnose_file(run_cli, path, tmp_path)
-    assert d["cause"] == case.effect, d["effects"]
-    assert d["nonlinearity"]["class"] == case.cls
-    if case.effect != "none":
-        assert d["gain"] > 0
-    else:
-        assert d["gain"] == 0
+def test_hidden_effects_regression(run_cli: RunCli, tmp_path: Path) -> None:
+    rows = []
+    for case in generator.cases_per_effect(3, 0):
+        path = generator.write_case(case, tmp_path)
+        d = _diagnose_file(run_cli, path, tmp_path)
+        rows.append((case, d))
+    right = {
+        "cause": sum(d["cause"] == c.effect for c, d in rows),
+        "class": sum(d["nonlinearity"]["class"] == c.cls for c, d in rows),
+        "gain": sum(d["gain"] > 0 for c, d in rows if c.effect != "none"),
+    }
+    print(f"\nseeds 0-20: {right} of {DEFAULT_CASES} ({DEFAULT_CASES - 3} with an effect)")
+    wrong = [(c.seed, c.effect, c.cls, d["cause"], d["nonlinearity"]["class"]) for c, d in rows]
+    for key, n in DEFAULT_RIGHT.items():
+        assert right[key] >= n, (key, right, wrong)
+    # a record without an effect gains nothing: its extended model is the nominal
+    assert all(d["gain"] == 0 for c, d in rows if d["cause"] in ("none", "unexplained"))
 
 
 @pytest.mark.slow
-def test_hidden_effects_confusion_matrix(
-    run_cli: RunCli, tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
-    cases = generator.cases_per_effect(20, start=1000)
-    rows = []
-    for case in cases:
-        path = generator.write_case(case, tmp_path)
-        d = _diagnose_file(run_cli, path, tmp_path)
-        rows.append(
-            {
-                "effect": case.effect,
-                "cls": case.cls,
-                "cause": d["cause"],
-                "found_cls": d["nonlinearity"]["class"],
-                "gain": d["gain"],
-            }
-        )
-        path.unlink()
+def test_hidden_effects_confusion_matrix(capsys: pytest.CaptureFixture[str]) -> None:
+    rows = calibrate.run(generator.cases_per_effect(20, start=1000), jobs=2)
     text = calibrate.report(rows)
     with capsys.disabled():
         print(f"\nhbench diagnose on {len(rows)} synthetic records (seeds 1000-1139)\n{text}")
+    assert not [r for r in rows if r["cause"] == "error"]
     n = len(rows)
     cause_ok = sum(r["cause"] == calibrate.cause_label(r["effect"]) for r in rows) / n
     class_ok = sum(r["cls"] == r["found_cls"] for r in rows) / n
     hidden = [r for r in rows if r["effect"] != "none"]
     gain_ok = sum(r["gain"] > 0 for r in hidden) / len(hidden)
-    # the rates this method reaches on seeds 1000-1139 (the printed matrices): cause 123/140,
-    # class 130/140, positive gain 109/120; the bounds leave room for a record or two
-    assert cause_ok >= 0.84
-    assert class_ok >= 0.90
-    assert gain_ok >= 0.88
+    # the rates this method reaches on seeds 1000-1139 (the printed matrices); the bounds
+    # leave room for a record or two
+    assert cause_ok >= SLOW_RATES["cause"]
+    assert class_ok >= SLOW_RATES["class"]
+    assert gain_ok >= SLOW_RATES["gain"]
+
+
+#: Measured on seeds 1000-1139 (cause 124/140, class 134/140, positive gain 110/120), less a
+#: record or two.
+SLOW_RATES = {"cause": 0.87, "class": 0.94, "gain": 0.90}
 
 
 #: The stiction verdict on 128 synthetic plant loops held out from every design choice

@@ -226,7 +226,9 @@ def _pilot(case: BenchCase, plant: ContinuousPlant) -> tuple[np.ndarray, np.ndar
     """``(x, y0)`` of the loop with a linear valve and no noise."""
     sc = _scenario(case, plant, {"name": "linear"})
     sc.sigma2 = 0.0
-    rec, truth = simulate(sc, 1, np.random.default_rng(np.random.SeedSequence([20261127, case.seed])))
+    rec, truth = simulate(
+        sc, 1, np.random.default_rng(np.random.SeedSequence([20261127, case.seed]))
+    )
     return rec.x[0], truth.y0[0]
 
 
@@ -271,8 +273,9 @@ def draw_bench_case(
     elif effect == "order":
         n_lags = max(3 - (len(base.den) - 1), 1)
         ep.update(taus=[float(v) for v in rng.uniform(1.0, 3.0, n_lags)])
-    draft = BenchCase(seed, effect, cls, plant, p, {"name": "p", "kp": 0.0}, sigma2,
-                      effect_params=ep)
+    draft = BenchCase(
+        seed, effect, cls, plant, p, {"name": "p", "kp": 0.0}, sigma2, effect_params=ep
+    )
     h = draft.T / p
     loops = [base.discretize(h), case_plant(draft).discretize(h)]
     if effect == "time-varying":
@@ -292,7 +295,15 @@ def draw_bench_case(
     c, d = _noise_filter(base, sc)
     sigma = np.sqrt(sigma2) if plant == "paper" else s / paper_snr(sigma2) / _norm(c, d)
     return BenchCase(
-        seed, effect, cls, plant, p, ctl, sigma2, nl_params=nl_params, effect_params=ep,
+        seed,
+        effect,
+        cls,
+        plant,
+        p,
+        ctl,
+        sigma2,
+        nl_params=nl_params,
+        effect_params=ep,
         noise_sigma=float(sigma),
     )
 

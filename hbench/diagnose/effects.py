@@ -125,7 +125,9 @@ class Effect:
         if fired:
             verdict = f"fires: effect size above it and p < {ALPHA:g}"
         elif large:
-            verdict = f"quiet: effect size above it but p = {_fmt_p(p_value)} is not below {ALPHA:g}"
+            verdict = (
+                f"quiet: effect size above it but p = {_fmt_p(p_value)} is not below {ALPHA:g}"
+            )
         elif significant:
             verdict = (
                 f"quiet: p < {ALPHA:g} but the effect size is below the threshold (an effect "

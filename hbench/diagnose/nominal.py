@@ -412,7 +412,9 @@ def equation_error_classes(
             n,
             na + nb + 1 + core.N_SHAPE[cls],
             info={
-                "strength": classes.strength(cls, theta, x_fit) if theta or cls == "linear" else 0.0,
+                "strength": classes.strength(cls, theta, x_fit)
+                if theta or cls == "linear"
+                else 0.0,
                 "eq": th,
                 "graph_score": float(g.score) if g is not None else float("nan"),
             },

@@ -213,7 +213,11 @@ def _rows(d: Any) -> list[dict[str, str]]:
                 "effect": det.name,
                 "statistic": _value(det.statistic, ".4g", "the statistic could not be computed"),
                 "threshold": _value(det.threshold, ".4g", "no threshold"),
-                "p-value": _value(det.p_value, ".2g", "no test gives one"),
+                "p-value": (
+                    "< 1e-300"
+                    if det.p_value < 1e-300 and det.p_value >= 0
+                    else _value(det.p_value, ".2g", "no test gives one")
+                ),
                 "verdict": "fires" if det.fired else "quiet",
                 f"extended fit ({d.criterion})": (
                     ""
@@ -242,18 +246,11 @@ def _value(v: float, fmt: str, why: str) -> str:
 
 def _summary_rows(d: Any) -> list[tuple[str, str]]:
     nl = d.nonlinearity
-    params = (
-        ", ".join(
-            f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}"
-            for k, v in nl["params"].items()
-        )
-        or "-"
-    )
     scores = ", ".join(f"{k} {v:.3g}" for k, v in nl["scores"].items())
     how = (
         "blind identification (" + str(d.nominal.info.get("method", "")) + ") of G and U on "
-        "the fit part, class on the (x, U) graph by BIC, parameters refitted by equation "
-        "error"
+        "the fit part; every class fitted by equation error through the dynamics from its fit "
+        "to the (x, U) graph, the class chosen by BIC"
         if d.ctx.p >= 2
         else "output-error model from x to y; classes fitted through the dynamics; class decided "
         "on the whole record, parameters fitted on the fit part"
@@ -271,7 +268,6 @@ def _summary_rows(d: Any) -> list[tuple[str, str]]:
             f"validate on the last {d.ctx.K - d.ctx.k_fit}",
         ),
         ("nominal model", how),
-        ("nonlinearity", f"{nl['class']} ({params})"),
         (
             "class scores",
             scores

@@ -140,8 +140,7 @@ class Diagnosis:
             det = next((d for d in self.detections if d.name == self.cause), None)
             said = "" if det is None else f" (its detector: {'fired' if det.fired else 'quiet'})"
             return (
-                f"{self.cause}'s extension gains the most {crit} fit, {self.gain:+.1f} points"
-                f"{said}"
+                f"{self.cause}'s extension gains the most {crit} fit, {self.gain:+.1f} points{said}"
             )
         if self.cause == "none":
             return (
@@ -406,9 +405,7 @@ def parse_criterion(rule: str) -> Criterion | None:
     )
 
 
-def choose_criterion(
-    ctx: nm.Context, nominal: nm.Nominal, rule: str = "simulation"
-) -> Criterion:
+def choose_criterion(ctx: nm.Context, nominal: nm.Nominal, rule: str = "simulation") -> Criterion:
     """The criterion ``rule`` names for this record: ``simulation`` (default); ``prediction-K``
     (K given); ``prediction``: the horizon by :func:`dominant_horizon` from the nominal's noise
     model ``e / A`` (the blind route, ``p >= 2``), or the simulation where the nominal's noise
