@@ -47,7 +47,6 @@ and are never used to choose anything.
 from __future__ import annotations
 
 import copy
-import json
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -57,7 +56,14 @@ from scipy import signal
 
 from hbench import scenarios
 from hbench.controllers import PI, P
-from hbench.diagnose.generator import CLASSES, EFFECTS, InjectedNoise, _changed_plant
+from hbench.diagnose.generator import (
+    CLASSES,
+    EFFECTS,
+    InjectedNoise,
+    _changed_plant,
+    additive_effect,
+    write_truth,
+)
 from hbench.diagnose.generator import _simulate_switched as simulate_switched
 from hbench.noise import ContinuousFilter
 from hbench.plants import BUILTIN as PLANTS
@@ -343,22 +349,12 @@ def simulate_bench_case(case: BenchCase) -> Record:
     # the nominal noise: the nominal plant's own process noise (an extra lag or delay of the
     # plant is the effect, not the noise's)
     c, d = _noise_filter(nominal_plant, _scenario(case, nominal_plant, {"name": "linear"}))
-    add = np.zeros(N)
-    s = ep["s"]
     if case.effect == "colored-noise":
         cc, dd = (1.0, ep["c1"]), (1.0, -ep["d1"])
         col = signal.lfilter(cc, dd, rng.standard_normal(N))
-        add = col * (s / ep["snr"]) / max(float(np.std(col)), 1e-300)
-    elif case.effect == "drift":
-        t = np.arange(N) / N
-        walk = np.cumsum(rng.standard_normal(N))
-        walk = walk / max(float(np.max(np.abs(walk))), 1e-12) * ep["walk"] * abs(ep["D"])
-        add = ep["D"] * t + walk
-    elif case.effect == "outliers":
-        n_out = max(round(ep["share"] * N), 3)
-        at = rng.choice(np.arange(50, N), size=n_out, replace=False)
-        lo, hi = ep["amplitude"]
-        add[at] = rng.choice([-1.0, 1.0], n_out) * rng.uniform(lo, hi, n_out)
+        add = col * (ep["s"] / ep["snr"]) / max(float(np.std(col)), 1e-300)
+    else:
+        add = additive_effect(case.effect, ep, N, rng)
     sc.noise = InjectedNoise(case.noise_sigma, c, d, add)
     sc.sigma2 = 1.0
     if case.effect == "time-varying":
@@ -371,13 +367,7 @@ def simulate_bench_case(case: BenchCase) -> Record:
 def write_bench_case(case: BenchCase, directory: Path | str, suffix: str = ".csv") -> Path:
     """Simulate ``case`` and write its record to ``directory``; the truth goes to a sidecar
     ``.truth.json`` that the diagnosis never reads."""
-    from hbench.readers import write_record
-
-    directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
-    path = write_record(simulate_bench_case(case), directory / f"{case.name}{suffix}")
-    (directory / f"{case.name}.truth.json").write_text(json.dumps(case.as_dict(), indent=1))
-    return path
+    return write_truth(simulate_bench_case(case), case.name, case.as_dict(), directory, suffix)
 
 
 def bench_grid(

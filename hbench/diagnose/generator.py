@@ -338,24 +338,48 @@ def _filter_norm(c: Any, d: Any) -> float:
     return float(np.linalg.norm(sps.lfilter(c, d, imp)))
 
 
-def _noise(case: Case, N: int, rng: np.random.Generator, plant: DiscretePlant) -> InjectedNoise:
-    ep, s = case.effect_params, case.effect_params["s"]
-    c: tuple[float, ...] = (1.0,)
-    d: tuple[float, ...] | None = None  # ARX: the plant's own A
+def additive_effect(
+    effect: str, ep: dict[str, Any], N: int, rng: np.random.Generator
+) -> np.ndarray:
+    """What ``drift`` (a ramp ``D t / t_end`` plus a random walk reaching ``walk |D|``) and
+    ``outliers`` (spikes of the given ``share`` of the samples, amplitudes in ``amplitude``,
+    random sign, none in the first 50 samples) add to ``y``; zeros for the other effects."""
     add = np.zeros(N)
-    if case.effect == "colored-noise":
-        # coloured equation noise: A v = (1 + c1 q^-1) / (1 - d1 q^-1) e
-        c, d = (1.0, ep["c1"]), tuple(np.convolve([1.0, -ep["d1"]], plant.a))
-    elif case.effect == "drift":
+    if effect == "drift":
         t = np.arange(N) / N
         walk = np.cumsum(rng.standard_normal(N))
         walk = walk / max(float(np.max(np.abs(walk))), 1e-12) * ep["walk"] * abs(ep["D"])
         add = ep["D"] * t + walk
-    elif case.effect == "outliers":
+    elif effect == "outliers":
         n_out = max(round(ep["share"] * N), 3)
         at = rng.choice(np.arange(50, N), size=n_out, replace=False)
         lo, hi = ep["amplitude"]
         add[at] = rng.choice([-1.0, 1.0], n_out) * rng.uniform(lo, hi, n_out)
+    return add
+
+
+def write_truth(
+    record: Record, name: str, truth: dict[str, Any], directory: Path | str, suffix: str = ".csv"
+) -> Path:
+    """Write ``record`` to ``directory`` as ``name + suffix`` and ``truth`` beside it as
+    ``name.truth.json`` (a sidecar the diagnosis never reads)."""
+    from hbench.readers import write_record
+
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    path = write_record(record, directory / f"{name}{suffix}")
+    (directory / f"{name}.truth.json").write_text(json.dumps(truth, indent=1))
+    return path
+
+
+def _noise(case: Case, N: int, rng: np.random.Generator, plant: DiscretePlant) -> InjectedNoise:
+    ep, s = case.effect_params, case.effect_params["s"]
+    c: tuple[float, ...] = (1.0,)
+    d: tuple[float, ...] | None = None  # ARX: the plant's own A
+    if case.effect == "colored-noise":
+        # coloured equation noise: A v = (1 + c1 q^-1) / (1 - d1 q^-1) e
+        c, d = (1.0, ep["c1"]), tuple(np.convolve([1.0, -ep["d1"]], plant.a))
+    add = additive_effect(case.effect, ep, N, rng)
     # sigma so that the noise (without drift and spikes) has the case's SNR
     sigma = s / case.snr / _filter_norm(c, plant.a if d is None else d)
     return InjectedNoise(sigma, c, d, add)
@@ -437,13 +461,7 @@ def simulate_case(case: Case) -> Record:
 def write_case(case: Case, directory: Path | str, suffix: str = ".csv") -> Path:
     """Simulate ``case`` and write its record to ``directory``; the truth goes to a sidecar
     ``.truth.json`` that the diagnosis never reads."""
-    from hbench.readers import write_record
-
-    directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
-    path = write_record(simulate_case(case), directory / f"{case.name}{suffix}")
-    (directory / f"{case.name}.truth.json").write_text(json.dumps(case.as_dict(), indent=1))
-    return path
+    return write_truth(simulate_case(case), case.name, case.as_dict(), directory, suffix)
 
 
 def balanced_cases(n: int, start: int = 0) -> list[Case]:
