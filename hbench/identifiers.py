@@ -793,6 +793,60 @@ def inner_ls(
     return pp.inner_signal_ls(sys, h0, h1), sys.n0 - 1, "ls27"
 
 
+#: ``inverse`` choices of :func:`inverse_inner`.
+INVERSES = ("auto", "direct", "bezout", "refuse")
+
+
+def inverse_inner(choice: str) -> InnerSignal:
+    """An ``inner`` step for :func:`blind_fit`: the direct inverse or the Bezout combiner.
+
+    The direct inverse is ``A(q)/B(q) y`` down-sampled by p (Table 5's F_INV); the Bezout
+    combiner is the minimum-norm degree-0 combination of the polyphase channels, for a B that
+    is not minimum phase.
+
+    Parameters
+    ----------
+    choice : str
+        One of :data:`INVERSES`. ``auto`` uses the direct inverse when every zero of B is inside
+        the unit circle and the Bezout combiner otherwise; ``direct`` and ``bezout`` use one of
+        them for every run; ``refuse`` marks non-minimum-phase runs with nan (no estimate, the
+        reason in :data:`REFUSALS`).
+
+    Returns
+    -------
+    InnerSignal
+        ``inner(y, w, a, b, p, tau, t_min) -> (U~, n_first, label)``.
+    """
+    if choice not in INVERSES:
+        raise InputError(f"inverse must be one of {', '.join(INVERSES)}, got {choice!r}")
+
+    def inner(y, w, a, b, p, tau, t_min):
+        n0, periods = pp.simo_periods(w.shape[1], p, tau, t_min)
+        n_first = n0 - 1
+        M = periods + 1
+        nmp = pp.max_root_modulus(b) >= 1.0
+        use_direct = (
+            (~nmp) if choice in ("auto", "refuse") else np.full(b.shape[0], choice == "direct")
+        )
+        if use_direct.all():  # every run (the usual case): no copies of the batch
+            return pp.inner_signal_direct(y, a, b, p, tau, n_first, M), n_first, "direct"
+        # from here on some runs are not minimum phase (or the Bezout combiner was chosen)
+        U = np.full((b.shape[0], M), np.nan)
+        if use_direct.any():
+            U[use_direct] = pp.inner_signal_direct(
+                y[use_direct], a[use_direct], b[use_direct], p, tau, n_first, M
+            )
+        if choice == "refuse":
+            return U, n_first, "refused-nmp"  # runs without an estimate get its reason
+        rest = ~use_direct
+        h0, h1 = pp.simo_channels(b[rest], p)
+        sys_rest = pp.simo_system(w[rest], p, tau, t_min)
+        U[rest] = pp.inner_signal_bezout(sys_rest, h0, h1)[:, :M]
+        return U, n_first, "direct+bezout" if use_direct.any() else "bezout"
+
+    return inner
+
+
 def blind_fit(
     method: str,
     record: Record,

@@ -101,7 +101,7 @@ DEFAULT_RUNS = 100
 NOISE_FREE_RUNS = 10
 #: Realisations behind the spread of the Table 1 and 2 values.
 TABLE12_RUNS = 20
-#: Every method the reproduction runs (``wang-lsm-inv`` is defined in this module).
+#: Every method the reproduction runs (``wang-lsm-inv``: ``wang-lsm`` with ``inverse='auto'``).
 ALL_METHODS: tuple[str, ...] = (
     "wang-lsm",
     "wang-iv",
@@ -444,49 +444,6 @@ def level_seed(seed: int, sigma2: float) -> Any:
     return cell_seed(seed, {"experiment": "paper_section6", "sigma2": float(sigma2)})
 
 
-@functools.lru_cache(maxsize=1)
-def _lsm_inverse_class() -> type:
-    """``wang-lsm-inv``: Wang's LSM estimates in the direct inverse (Table 5's F_INV).
-
-    Built on first use so that importing this module stays light (start-up time).
-    """
-    from hbench_baifu import inverse_inner
-
-    from hbench import polyphase as pp
-    from hbench.identifiers import Identifier, bias_compensated_fit, blind_fit
-
-    class WangLSMDirectInverse(Identifier):
-        """Bias-compensated LSM A and B (eqs. 14, 15, 18) with the inner signal from the direct
-        inverse ``A(q)/B(q) y`` down-sampled by p (Bezout combiner if B is not minimum phase):
-        Table 5's F_INV, "U(n) estimated by passing y(t) through the direct inverse of G(q)"."""
-
-        name = "wang-lsm-inv"
-        summary = "Wang et al. 2007 LSM estimates with the direct inverse A/B (Table 5's F_INV)"
-
-        def __init__(self, pooled: bool = True) -> None:
-            self.pooled = bool(pooled)
-
-        def options(self) -> dict[str, Any]:
-            return {"pooled": self.pooled, "inverse": "auto"}
-
-        def identify(self, record, options, truth=None):
-            def numerator(dw, tau, nb, sigma2, idx):
-                return pp.b_lsm(dw, record.p, tau, nb, sigma2, t_min=pp.first_valid(dw))
-
-            return blind_fit(
-                self.name,
-                record,
-                options,
-                denominator=bias_compensated_fit,
-                numerator=numerator,
-                inner=inverse_inner("auto"),
-                pooled=self.pooled,
-                info=self.options(),
-            )
-
-    return WangLSMDirectInverse
-
-
 def _lsm_options(config: Config) -> dict[str, Any]:
     """``wang-lsm``'s options under ``config``."""
     return {"pooled": config.pooled, "eq15": config.eq15}
@@ -498,8 +455,9 @@ def make_methods(config: Config, names: Sequence[str]) -> dict[str, Any]:
 
     out: dict[str, Any] = {}
     for name in names:
-        if name == "wang-lsm-inv":
-            out[name] = _lsm_inverse_class()(pooled=config.pooled)
+        if name == "wang-lsm-inv":  # the LSM estimates in the direct inverse (F_INV)
+            kw = {"pooled": config.pooled, "inverse": "auto"}
+            out[name] = methods_from_names(["wang-lsm"], {"wang-lsm": kw})["wang-lsm"]
         elif name in WANG_VARIANTS:
             kw = {"pooled": config.pooled, **WANG_VARIANTS[name]}
             out[name] = methods_from_names(["wang"], {"wang": kw})["wang"]
