@@ -289,6 +289,8 @@ _PAIR_SCRIPT = textwrap.dedent(
     import json, sys, time
     from hbench import scenarios
     from hbench.runner import methods_from_names, run_cell
+    from hbench.runtime import tune_allocator
+    tune_allocator()  # as the hbench command does
     sc = scenarios.build(scenarios.PAPER_SECTION6)
     methods = methods_from_names({methods!r})
     run_cell(sc, methods, 400, 1)  # warm: imports, kernels, allocator
@@ -411,6 +413,8 @@ _MEMORY_SCRIPT = textwrap.dedent(
     import resource, sys, time
     from hbench import scenarios
     from hbench.runner import methods_from_names, run_cell
+    from hbench.runtime import tune_allocator
+    tune_allocator()  # as the hbench command does
     sc = scenarios.build(scenarios.PAPER_SECTION6)
     t0 = time.perf_counter()
     res = run_cell(sc, methods_from_names({methods!r}), 10000, {seed})

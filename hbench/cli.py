@@ -255,7 +255,11 @@ def _command_parser(parser: argparse.ArgumentParser, name: str | None) -> argpar
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``hbench`` console script."""
+    """Entry point of the ``hbench`` console script.
+
+    A command runs with glibc's allocator tuned for the process
+    (:func:`hbench.runtime.tune_allocator`; ``HBENCH_TUNE_MALLOC=0`` leaves it alone).
+    """
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
     args, extra = parser.parse_known_args(argv)
@@ -265,6 +269,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 0
+    from hbench.runtime import tune_allocator
+
+    tune_allocator()  # the command's own process (and the workers it forks): hbench.runtime
     try:
         with one_line_warnings(args.command):
             return int(args.func(args) or 0)

@@ -601,6 +601,10 @@ def task(cfg: Any) -> None:
     from hbench.errors import one_line_warnings
 
     parent = os.environ.get(PARENT_ENV, "")
+    if parent.isdigit() and int(parent) != os.getpid():  # a launcher's worker of hbench sweep
+        from hbench.runtime import tune_allocator
+
+        tune_allocator()  # as in the sweep's own process (hbench.runtime)
     with one_line_warnings("sweep"), watch_parent(int(parent) if parent.isdigit() else None):
         _task(cfg)
 
