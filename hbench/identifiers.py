@@ -308,15 +308,6 @@ def _blocks(q: np.ndarray) -> np.ndarray:
     return np.where(q, out, 0)
 
 
-def _popcount(m: np.ndarray) -> np.ndarray:
-    out = np.zeros_like(m)
-    v = m.copy()
-    while np.any(v):
-        out += v & 1
-        v >>= 1
-    return out
-
-
 def _last_of_block(mask: np.ndarray, p: int) -> np.ndarray:
     """The last shift of a cyclic block given as a bit mask (the one whose successor is out)."""
     bits = (mask[..., None] >> np.arange(p)) & 1  # (..., p)

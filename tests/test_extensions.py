@@ -24,29 +24,47 @@ def test_noise_bias_uses_the_impulse_response_of_one_over_a():
     np.testing.assert_allclose(c, [[-(0.2 + 0.5 * 0.3), -0.3]], rtol=1e-14)
 
 
-def test_coloured_noise_lsm_against_the_ivm_at_high_noise():
-    """Issue 8, claim 2, on the paper's example at sigma^2 = 1e-2 (its ZOH coloured noise).
-
-    Holds: |bias of a1| below the IVM's std (with 3 SE of our mean added), the paper's LSM
-    clearly biased, and our std below that of the IVM on phase p alone (the paper's eq. 20 at
-    l = p; std ratio <= 0.75, i.e. 3 SE of a ratio of stds from 100 runs clear of 1).
-    Does NOT hold (measured, seed 8): against hbench's default IVM, which re-estimates A from all
-    quiet phases (step iii), our std is ~1.3x the IVM's (0.042 vs 0.032); asserted here so that
-    a change is noticed; the claim is met by ``wang-iv-opt`` (next tests).
-    """
+@pytest.fixture(scope="module")
+def high_noise_a1():
+    """a1 of ``wang-lsm-cn``, ``wang-lsm`` and ``wang-iv`` (phase p, pooled) on the paper's
+    example at sigma^2 = 1e-2 (its ZOH coloured noise), 100 runs, seed 8; and the true a1."""
     record, truth = sim(runs=100, seed=8, noise__sigma2=1e-2)
-    a1 = truth.plant.a[1]
 
     def a1_of(method, **kw):
         return run_method(method, record, options=TRUE_STRUCTURE, **kw).params()["a1"]
 
-    ours, lsm = a1_of("wang-lsm-cn"), a1_of("wang-lsm")
-    iv_phase_p, iv_pooled = a1_of("wang-iv", pooled=False), a1_of("wang-iv")
+    return {
+        "true": truth.plant.a[1],
+        "ours": a1_of("wang-lsm-cn"),
+        "lsm": a1_of("wang-lsm"),
+        "iv_phase_p": a1_of("wang-iv", pooled=False),
+        "iv_pooled": a1_of("wang-iv"),
+    }
+
+
+def test_coloured_noise_lsm_against_the_ivm_at_high_noise(high_noise_a1):
+    """Claim 2 of the coloured-noise LSM, the part that holds at sigma^2 = 1e-2: |bias of a1|
+    below the IVM's std (with 3 SE of our mean added), the paper's LSM clearly biased, and our
+    std below that of the IVM on phase p alone (the paper's eq. 20 at l = p; std ratio <= 0.75,
+    i.e. 3 SE of a ratio of stds from 100 runs clear of 1)."""
+    v = high_noise_a1
+    ours, lsm, a1 = v["ours"], v["lsm"], v["true"]
     sd = np.std(ours, ddof=1)
-    assert abs(ours.mean() - a1) + 3 * sd / 10 < np.std(iv_pooled, ddof=1)
+    assert abs(ours.mean() - a1) + 3 * sd / 10 < np.std(v["iv_pooled"], ddof=1)
     assert abs(lsm.mean() - a1) > 3 * np.std(lsm, ddof=1) / 10
-    assert sd <= 0.75 * np.std(iv_phase_p, ddof=1)
-    assert sd > np.std(iv_pooled, ddof=1)  # the open part of claim 2
+    assert sd <= 0.75 * np.std(v["iv_phase_p"], ddof=1)
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="not met yet: against hbench's default IVM, which re-estimates A from all quiet "
+    "phases (step iii), wang-lsm-cn's std of a1 is ~1.3x the IVM's (0.042 vs 0.032, seed 8); "
+    "wang-iv-opt meets the claim (next tests)",
+)
+def test_coloured_noise_lsm_std_below_the_pooled_ivm(high_noise_a1):
+    """Claim 2's open part: our std of a1 below that of hbench's default (pooled) IVM."""
+    v = high_noise_a1
+    assert np.std(v["ours"], ddof=1) < np.std(v["iv_pooled"], ddof=1)
 
 
 def test_optimal_iv_exact_on_noise_free_data():

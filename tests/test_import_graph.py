@@ -7,6 +7,7 @@ one would make the core depend on an installable extra and put the arrow both wa
 from __future__ import annotations
 
 import ast
+import tomllib
 from pathlib import Path
 
 import hbench
@@ -38,3 +39,13 @@ def test_no_core_module_imports_a_plugin():
         for path in sorted(CORE.rglob("*.py"))
     }
     assert {k: v for k, v in found.items() if v} == {}
+
+
+def test_test_tools_are_not_runtime_dependencies():
+    """Only the benchmarks import pytest-benchmark: it sits in the dev extra, not beside numpy."""
+    project = tomllib.loads((CORE.parent / "pyproject.toml").read_text())["project"]
+    runtime = " ".join(project["dependencies"])
+    assert "pytest" not in runtime
+    assert any(d.startswith("pytest-benchmark") for d in project["optional-dependencies"]["dev"])
+    for path in sorted(CORE.rglob("*.py")):
+        assert not _imported(path) & {"pytest", "pytest_benchmark"}, path
