@@ -3,8 +3,7 @@
 Run with ``.venv/bin/pytest benchmarks --benchmark-only -k bench_sweep``. The joblib case records
 ``speedup`` = basic time / joblib time (the fastest of :data:`ROUNDS` rounds each) in
 ``extra_info``. Each job is heavy enough (the paper's 500 s record, 4 methods, 3000 runs: about
-6 s of work; 600 runs took 4 s before session 5's speed-ups and 2 s after, 1000 runs 2 s after
-session 6's) that the per-job Hydra overhead (~0.4 s, paid by both launchers) and the start-up
+6 s of work) that the per-job Hydra overhead (~0.4 s, paid by both launchers) and the start-up
 of the worker processes (~3 s, joblib only) do not dominate. The whole ``hbench sweep`` command
 is timed in a fresh process, as a user runs it.
 

@@ -1,4 +1,4 @@
-"""Processes computing a cell's chunks (issue 7): forked for one cell, or kept for a scope.
+"""Processes computing a cell's chunks: forked for one cell, or kept for a scope.
 
 :func:`hbench.runner.run_cell` with ``jobs = n > 1`` computes the first ``1/n`` of a cell's
 chunks in this process and the others in ``n - 1`` worker processes; every run draws from its own
@@ -115,7 +115,7 @@ def _theirs(count: int, jobs: int) -> list[int]:
     the worker's piece before it at every step, idle whenever that one was slower); the workers
     compute theirs back to back meanwhile. Chunk order (the results, and the logs and warnings
     replayed) is unchanged. Interleaved kept cells of the paper's example, 16 each: median 3928
-    against 3891 runs/s (session 12)."""
+    against 3891 runs/s."""
     return list(range(max(count // jobs, 1), count))
 
 

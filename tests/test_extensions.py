@@ -1,4 +1,4 @@
-"""Methods beyond the paper (issue 8): claims tested with fixed seeds and stated standard errors."""
+"""Methods beyond the paper: claims tested with fixed seeds and stated standard errors."""
 
 from __future__ import annotations
 
@@ -78,7 +78,7 @@ def test_optimal_iv_exact_on_noise_free_data():
 
 
 def test_optimal_iv_beats_the_ivm_at_high_noise():
-    """Issue 8, claim 2, met by the optimally weighted IV (``wang-iv-opt``), sigma^2 = 1e-2.
+    """Claim 2, met by the optimally weighted IV (``wang-iv-opt``), sigma^2 = 1e-2.
 
     Same 100 records (seed 8) for both, structure given (as the paper's Table 4):
     (i) |bias of a1| + 3 SE of its mean < the IVM's std; (ii) std(a1) below the IVM's, tested by a
@@ -150,7 +150,7 @@ def _paired_fitness(sigma2: float, runs: int = 50, seed: int = 31):
 
 @pytest.mark.parametrize("sigma2", [5e-3, 1e-2])
 def test_joint_refinement_closes_half_the_gap(sigma2):
-    """Issue 8, claim 3: F_joint - F_LSM >= (F0 - F_LSM) / 2 at sigma^2 >= 5e-3 (paper's example).
+    """Claim 3: F_joint - F_LSM >= (F0 - F_LSM) / 2 at sigma^2 >= 5e-3 (paper's example).
 
     Paired per run (the same records for all methods), 50 runs, fixed seed: the mean of
     d = (F_joint - F_LSM) - (F0 - F_LSM) / 2 must exceed 3 standard errors of d above zero.
@@ -169,7 +169,7 @@ def test_joint_refinement_loses_no_ground_at_low_noise():
 
 @pytest.mark.parametrize("nonlinearity", ["backlash", "stiction"])
 def test_delay_beyond_a3_is_estimated(nonlinearity):
-    """Issue 8, claim 1: delays 0 .. 3p - 1 (p = 5), the multiple of p unknown to the method.
+    """Claim 1: delays 0 .. 3p - 1 (p = 5), the multiple of p unknown to the method.
 
     10 runs per delay at SNR 5, fixed seeds: the total delay tau + m p is right in >= 90 % of the
     150 runs (measured 99-100 %; the misses are structure-selection errors of tau, not of m).

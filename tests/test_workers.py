@@ -1,4 +1,4 @@
-"""hbench.workers: worker processes forked per cell or kept for a scope (issue 7).
+"""hbench.workers: worker processes forked per cell or kept for a scope.
 
 The kept scope must give the rows of one process, reuse its workers between cells, never run a
 cell with code or settings the parent no longer has, never hang or leave processes behind when
@@ -243,7 +243,7 @@ def _script(body: str) -> subprocess.CompletedProcess[str]:
 
 
 def test_a_worker_killed_while_idle_does_not_hang_the_next_cell():
-    """Session 9's kept ``multiprocessing.Pool`` waited forever here."""
+    """A kept ``multiprocessing.Pool`` would wait forever here (``concurrent.futures`` raises)."""
     body = """
         import os, signal, time, warnings
         from hbench import workers
