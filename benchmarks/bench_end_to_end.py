@@ -78,7 +78,7 @@ def _usage(pids: Iterable[int] = ()) -> tuple[float, int]:
 
 def _kept_pids() -> list[int]:
     scope = workers._SCOPE
-    return list(scope.pool._processes) if scope is not None and scope.pool is not None else []
+    return [proc.pid for proc in scope.processes] if scope is not None else []
 
 
 @pytest.mark.parametrize(
