@@ -231,7 +231,15 @@ class Structure:
 
 
 def check_identifiable(p: int, options: IdentifyOptions) -> str:
-    """Empty string, or why assumption A2 fails for this p."""
+    """Empty string, or why assumption A2 fails for this p.
+
+    Parameters
+    ----------
+    p : int
+        Fast-sampling ratio of the record.
+    options : IdentifyOptions
+        What the method knows a priori (``nb_max`` is n0_b).
+    """
     if p < options.nb_max + 1:
         return (
             f"not identifiable: p = {p} < n0_b + 1 = {options.nb_max + 1} "
@@ -241,7 +249,17 @@ def check_identifiable(p: int, options: IdentifyOptions) -> str:
 
 
 def check_length(K: int, p: int, options: IdentifyOptions) -> str:
-    """Empty string, or why a record of K slow periods is too short for the quiet regressions."""
+    """Empty string, or why a record of K slow periods is too short for the quiet regressions.
+
+    Parameters
+    ----------
+    K : int
+        Slow periods (controller samples) of the record.
+    p : int
+        Fast-sampling ratio.
+    options : IdentifyOptions
+        The orders the regressions may take (:func:`largest_order`).
+    """
     L = largest_order(options)
     need = -(-(L + 1) // p) + 3  # the periods before the first full lag window, then 3 rows
     if K < need:
@@ -419,13 +437,29 @@ DenominatorFit = Callable[[pp.QuietRegression, np.ndarray], tuple[np.ndarray, np
 
 
 def bias_compensated_fit(reg: pp.QuietRegression, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Eqs. (14)-(15) as a :data:`DenominatorFit` (the LSM's estimate and selection)."""
+    """Eqs. (14)-(15) as a :data:`DenominatorFit` (the LSM's estimate and selection).
+
+    Parameters
+    ----------
+    reg : QuietRegression
+        The quiet-phase equations (13) of a group of runs.
+    idx : ndarray of int
+        The group's runs in the record (unused: the fit reads ``reg`` only).
+    """
     return pp.bias_compensated(reg)
 
 
 def ols_fit(reg: pp.QuietRegression, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Ordinary LS of eq. (13) as a :data:`DenominatorFit`; sigma^2 as half the residual mean
-    square (Bai & Fu's estimate and selection)."""
+    square (Bai & Fu's estimate and selection).
+
+    Parameters
+    ----------
+    reg : QuietRegression
+        The quiet-phase equations (13) of a group of runs.
+    idx : ndarray of int
+        The group's runs in the record (unused: the fit reads ``reg`` only).
+    """
     theta, s2, _ = pp.ols(reg)
     return theta, s2 / 2.0
 
@@ -438,7 +472,13 @@ def _reads_the_regression_only(fit: Callable[..., Any]) -> bool:
 
 
 def largest_order(options: IdentifyOptions) -> int:
-    """The largest denominator order a method may fit under ``options``."""
+    """The largest denominator order a method may fit under ``options``.
+
+    Parameters
+    ----------
+    options : IdentifyOptions
+        The given orders, or the ranges searched.
+    """
     return int(options.na) if options.na is not None else int(options.na_range[1])
 
 
@@ -461,7 +501,19 @@ def shared_moments(
     y: np.ndarray, p: int, L: int, cache: dict[str, Any] | None = None
 ) -> tuple[np.ndarray, pp.LagMoments]:
     """``(Delta y, its quiet-phase moments up to lag L)``, kept in ``cache`` (a record's) so that
-    every method run on one record computes them once."""
+    every method run on one record computes them once.
+
+    Parameters
+    ----------
+    y : ndarray
+        Fast-rate outputs, ``(runs, N)``.
+    p : int
+        Fast-sampling ratio.
+    L : int
+        Largest lag (regression order) the moments must cover.
+    cache : dict, optional
+        A record's cache (``record.cache``); None computes afresh.
+    """
 
     def make() -> tuple[np.ndarray, pp.LagMoments]:
         dy = pp.delta(y)
@@ -498,6 +550,23 @@ def select_structure(
     at phase ``l = p`` under each shift; ``na`` and ``tau`` by :class:`SelectionRule`.
     (ii)-(iii) ``A`` with ``nb = n0_b``, ``w = A(q) y``, ``Var{Delta w^(l)}``, ``nb``.
     With ``na``, ``tau`` and ``nb`` all given nothing is selected and the tables are nan.
+
+    Parameters
+    ----------
+    y : ndarray
+        Fast-rate outputs, ``(runs, N)``.
+    p : int
+        Fast-sampling ratio.
+    options : IdentifyOptions
+        Orders and delay given a priori (those given are not selected).
+    fit : DenominatorFit
+        The denominator estimate whose criterion is tabulated.
+    rule : SelectionRule, optional
+        How the tables are read (default: ``SelectionRule()``).
+    pooled : bool, optional
+        Re-estimate A from every quiet phase ``nb + 1 .. p`` for step (iii).
+    cache : dict, optional
+        A record's cache, for moments shared between methods.
     """
     R = y.shape[0]
     if options.na is not None and options.tau is not None and options.nb is not None:
@@ -592,7 +661,13 @@ def _runs(a: np.ndarray, idx: np.ndarray) -> np.ndarray:
 
 
 def groups(*keys: np.ndarray) -> list[tuple[tuple[int, ...], np.ndarray]]:
-    """Runs grouped by equal keys: ``[((k1, k2, ..), indices), ...]``."""
+    """Runs grouped by equal keys: ``[((k1, k2, ..), indices), ...]``.
+
+    Parameters
+    ----------
+    *keys : ndarray
+        Per-run keys of equal length (e.g. ``na``, ``tau``, ``nb``).
+    """
     stacked = np.stack(keys, axis=1)
     uniq, inv = np.unique(stacked, axis=0, return_inverse=True)
     return [
@@ -601,12 +676,32 @@ def groups(*keys: np.ndarray) -> list[tuple[tuple[int, ...], np.ndarray]]:
 
 
 def check_a4(b: np.ndarray, tol: float = 1e-6) -> np.ndarray:
-    """True where ``B(1) = sum b`` is (numerically) zero: assumption A4 fails."""
+    """True where ``B(1) = sum b`` is (numerically) zero: assumption A4 fails.
+
+    Parameters
+    ----------
+    b : ndarray
+        Numerator coefficients, ``(runs, nb)``.
+    tol : float, optional
+        ``|B(1)|`` at or below ``tol`` times ``sum |b_l|`` counts as zero (relative).
+    """
     return np.abs(b.sum(axis=1)) <= tol * np.abs(b).sum(axis=1)
 
 
 def empty_estimate(method: str, record: Record, reason: str, **info: Any) -> Estimate:
-    """An all-nan estimate flagged not identifiable (never an exception that stops a sweep)."""
+    """An all-nan estimate flagged not identifiable (never an exception that stops a sweep).
+
+    Parameters
+    ----------
+    method : str
+        The method's name (``Estimate.method``).
+    record : Record
+        The record the estimate is for (its runs and slow samples).
+    reason : str
+        Why there is no estimate, kept for every run.
+    **info : Any
+        Entries of ``Estimate.info``.
+    """
     R, K = record.runs, record.n_slow
     return Estimate(
         method=method,
@@ -624,14 +719,34 @@ def empty_estimate(method: str, record: Record, reason: str, **info: Any) -> Est
 
 
 def pad(parts: Sequence[np.ndarray], width: int) -> np.ndarray:
-    """Zero-pad 2-D arrays on the right to ``width`` columns."""
+    """Zero-pad 2-D arrays on the right to ``width`` columns.
+
+    Parameters
+    ----------
+    parts : sequence of ndarray
+        2-D arrays with equal row counts.
+    width : int
+        Columns of the result (at least each part's).
+    """
     return np.stack([np.pad(p, (0, width - p.size)) for p in parts])
 
 
 def identify(
     method: Identifier, record: Record, options: IdentifyOptions, truth: Truth | None = None
 ) -> Estimate:
-    """Run ``method`` on ``record`` showing it only what it declared it needs."""
+    """Run ``method`` on ``record`` showing it only what it declared it needs.
+
+    Parameters
+    ----------
+    method : Identifier
+        The method instance.
+    record : Record
+        The record; ``x`` and ``r`` reach the method only if it needs them.
+    options : IdentifyOptions
+        What is known a priori.
+    truth : Truth, optional
+        The simulation's truth; passed only to a method that needs it.
+    """
     rec = record.withhold(method.needs)
     missing = [s for s in ("x", "r") if s in method.needs and getattr(rec, s) is None]
     if missing:
@@ -653,6 +768,15 @@ def check_estimate(est: Any, record: Record, name: str) -> None:
     malformed estimate fails with a message naming it, instead of an error further down (in the
     metrics, or in another method's rows). Values are not judged here: ``nan`` is how an
     estimate says the record does not determine something.
+
+    Parameters
+    ----------
+    est : Any
+        What the method returned.
+    record : Record
+        The record it was given.
+    name : str
+        The method's name, for the message.
     """
     if not isinstance(est, Estimate):
         raise MethodError(
@@ -722,7 +846,13 @@ def run_status(est: Estimate) -> tuple[np.ndarray, list[str]]:
     an infinite parameter (reason :data:`NON_FINITE`: an overflow is never an estimate).
 
     A run without ``U`` whose method says why (bai-fu's refused unstable inverse) stays ``ok``:
-    its parameters, orders and delay are estimates the bias and structure tables count."""
+    its parameters, orders and delay are estimates the bias and structure tables count.
+
+    Parameters
+    ----------
+    est : Estimate
+        A checked estimate (:func:`check_estimate`).
+    """
     ok = np.asarray(est.identifiable, bool)
     reasons = [str(r) for r in est.reason]
     silent = np.array([not r for r in reasons], bool)
@@ -778,7 +908,25 @@ REFUSALS = {
 def inner_ls(
     y: np.ndarray, w: np.ndarray, a: np.ndarray, b: np.ndarray, p: int, tau: int, t_min: int
 ) -> tuple[np.ndarray, int, str]:
-    """The paper's inner-signal estimate, eq. (27), solved in O(K) (tridiagonal)."""
+    """The paper's inner-signal estimate, eq. (27), solved in O(K) (tridiagonal).
+
+    Parameters
+    ----------
+    y : ndarray
+        The group's fast-rate outputs, ``(runs, N)``.
+    w : ndarray
+        ``A(q) y``, ``(runs, N)``.
+    a : ndarray
+        Denominators with the leading 1, ``(runs, na + 1)``.
+    b : ndarray
+        Numerators with ``b1 = 1``, ``(runs, nb)``.
+    p : int
+        Fast-sampling ratio.
+    tau : int
+        Delay within a period.
+    t_min : int
+        First fast sample where ``w`` is defined.
+    """
     sys = pp.simo_system(w, p, tau, t_min)
     h0, h1 = pp.simo_channels(b, p)
     return pp.inner_signal_ls(sys, h0, h1), sys.n0 - 1, "ls27"
@@ -864,6 +1012,31 @@ def blind_fit(
     selected structure on one record (kept in ``record.cache``) instead of computing the same
     tables again: such a function sees the regression (built from ``y``) and nothing else. A
     closure may read more (the reference, say) and is never shared.
+
+    Parameters
+    ----------
+    method : str
+        The method's name (``Estimate.method``).
+    record : Record
+        The record (``y`` is read; ``record.cache`` holds shared tables).
+    options : IdentifyOptions
+        What is known a priori.
+    denominator : DenominatorFit
+        ``(reg, idx) -> (theta, sigma2)``: A and the noise variance.
+    numerator : NumeratorFit
+        ``(dw, tau, nb, sigma2, idx) -> b`` with ``b1 = 1``.
+    inner : InnerSignal, optional
+        The inner-signal step (default: eq. (27), :func:`inner_ls`).
+    pooled : bool, optional
+        The denominator from all quiet phases instead of phase p alone.
+    rule : SelectionRule, optional
+        How the selection tables are read.
+    info : dict, optional
+        Entries of ``Estimate.info`` (the method's options).
+    selector : DenominatorFit, optional
+        The denominator estimate of the structure selection.
+    refine : callable, optional
+        ``(reg, idx, tau, nb) -> (theta, sigma2)`` for the final estimate.
     """
     p, R, K = record.p, record.runs, record.n_slow
     why = check_identifiable(p, options) or check_length(K, p, options)
