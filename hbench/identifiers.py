@@ -19,6 +19,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from hbench import polyphase as pp
+from hbench.docparams import parameters
 from hbench.errors import InputError, MethodError
 from hbench.records import Record, Truth
 
@@ -217,6 +218,20 @@ class SelectionRule:
                 raise InputError(f"selection {name} must be >= 0")
 
 
+#: numpydoc descriptions of the parameters shared here (:func:`hbench.docparams.parameters`)
+_PARAMS: dict[str, tuple[str, str]] = {
+    "p": ("int", "Fast-sampling ratio."),
+    "reg": ("QuietRegression", "The quiet-phase equations (13) of a group of runs."),
+    "idx": (
+        "ndarray of int",
+        "The group's runs in the record (unused: the fit reads ``reg`` only).",
+    ),
+    "y": ("ndarray", "Fast-rate outputs, ``(runs, N)``."),
+    "method": ("str", "The method's name (``Estimate.method``)."),
+    "options": ("IdentifyOptions", "What is known a priori."),
+}
+
+
 @dataclass(frozen=True)
 class Structure:
     """Per-run selected structure and the tables it was decided from."""
@@ -230,16 +245,13 @@ class Structure:
     na_values: np.ndarray
 
 
+@parameters(
+    _PARAMS,
+    p=("int", "Fast-sampling ratio of the record."),
+    options=("IdentifyOptions", "What the method knows a priori (``nb_max`` is n0_b)."),
+)
 def check_identifiable(p: int, options: IdentifyOptions) -> str:
-    """Empty string, or why assumption A2 fails for this p.
-
-    Parameters
-    ----------
-    p : int
-        Fast-sampling ratio of the record.
-    options : IdentifyOptions
-        What the method knows a priori (``nb_max`` is n0_b).
-    """
+    """Empty string, or why assumption A2 fails for this p."""
     if p < options.nb_max + 1:
         return (
             f"not identifiable: p = {p} < n0_b + 1 = {options.nb_max + 1} "
@@ -248,18 +260,13 @@ def check_identifiable(p: int, options: IdentifyOptions) -> str:
     return ""
 
 
+@parameters(
+    _PARAMS,
+    K=("int", "Slow periods (controller samples) of the record."),
+    options=("IdentifyOptions", "The orders the regressions may take (:func:`largest_order`)."),
+)
 def check_length(K: int, p: int, options: IdentifyOptions) -> str:
-    """Empty string, or why a record of K slow periods is too short for the quiet regressions.
-
-    Parameters
-    ----------
-    K : int
-        Slow periods (controller samples) of the record.
-    p : int
-        Fast-sampling ratio.
-    options : IdentifyOptions
-        The orders the regressions may take (:func:`largest_order`).
-    """
+    """Empty string, or why a record of K slow periods is too short for the quiet regressions."""
     L = largest_order(options)
     need = -(-(L + 1) // p) + 3  # the periods before the first full lag window, then 3 rows
     if K < need:
@@ -436,29 +443,16 @@ def _select_nb(
 DenominatorFit = Callable[[pp.QuietRegression, np.ndarray], tuple[np.ndarray, np.ndarray]]
 
 
+@parameters(_PARAMS)
 def bias_compensated_fit(reg: pp.QuietRegression, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Eqs. (14)-(15) as a :data:`DenominatorFit` (the LSM's estimate and selection).
-
-    Parameters
-    ----------
-    reg : QuietRegression
-        The quiet-phase equations (13) of a group of runs.
-    idx : ndarray of int
-        The group's runs in the record (unused: the fit reads ``reg`` only).
-    """
+    """Eqs. (14)-(15) as a :data:`DenominatorFit` (the LSM's estimate and selection)."""
     return pp.bias_compensated(reg)
 
 
+@parameters(_PARAMS)
 def ols_fit(reg: pp.QuietRegression, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Ordinary LS of eq. (13) as a :data:`DenominatorFit`; sigma^2 as half the residual mean
     square (Bai & Fu's estimate and selection).
-
-    Parameters
-    ----------
-    reg : QuietRegression
-        The quiet-phase equations (13) of a group of runs.
-    idx : ndarray of int
-        The group's runs in the record (unused: the fit reads ``reg`` only).
     """
     theta, s2, _ = pp.ols(reg)
     return theta, s2 / 2.0
@@ -471,14 +465,9 @@ def _reads_the_regression_only(fit: Callable[..., Any]) -> bool:
     )
 
 
+@parameters(_PARAMS, options=("IdentifyOptions", "The given orders, or the ranges searched."))
 def largest_order(options: IdentifyOptions) -> int:
-    """The largest denominator order a method may fit under ``options``.
-
-    Parameters
-    ----------
-    options : IdentifyOptions
-        The given orders, or the ranges searched.
-    """
+    """The largest denominator order a method may fit under ``options``."""
     return int(options.na) if options.na is not None else int(options.na_range[1])
 
 
@@ -497,22 +486,16 @@ def _kept(cache: dict[Any, Any] | None, key: Any, make: Callable[[], Any]) -> An
     return cache[key]
 
 
+@parameters(
+    _PARAMS,
+    L=("int", "Largest lag (regression order) the moments must cover."),
+    cache=("dict, optional", "A record's cache (``record.cache``); None computes afresh."),
+)
 def shared_moments(
     y: np.ndarray, p: int, L: int, cache: dict[str, Any] | None = None
 ) -> tuple[np.ndarray, pp.LagMoments]:
     """``(Delta y, its quiet-phase moments up to lag L)``, kept in ``cache`` (a record's) so that
     every method run on one record computes them once.
-
-    Parameters
-    ----------
-    y : ndarray
-        Fast-rate outputs, ``(runs, N)``.
-    p : int
-        Fast-sampling ratio.
-    L : int
-        Largest lag (regression order) the moments must cover.
-    cache : dict, optional
-        A record's cache (``record.cache``); None computes afresh.
     """
 
     def make() -> tuple[np.ndarray, pp.LagMoments]:
@@ -535,6 +518,17 @@ def _mean_square(dy: np.ndarray, cache: dict[str, Any] | None = None) -> np.ndar
     return _kept(cache, "mean-square-delta-y", make)
 
 
+@parameters(
+    _PARAMS,
+    options=("IdentifyOptions", "Orders and delay given a priori (those given are not selected)."),
+    fit=("DenominatorFit", "The denominator estimate whose criterion is tabulated."),
+    rule=("SelectionRule, optional", "How the tables are read (default: ``SelectionRule()``)."),
+    pooled=(
+        "bool, optional",
+        "Re-estimate A from every quiet phase ``nb + 1 .. p`` for step (iii).",
+    ),
+    cache=("dict, optional", "A record's cache, for moments shared between methods."),
+)
 def select_structure(
     y: np.ndarray,
     p: int,
@@ -550,23 +544,6 @@ def select_structure(
     at phase ``l = p`` under each shift; ``na`` and ``tau`` by :class:`SelectionRule`.
     (ii)-(iii) ``A`` with ``nb = n0_b``, ``w = A(q) y``, ``Var{Delta w^(l)}``, ``nb``.
     With ``na``, ``tau`` and ``nb`` all given nothing is selected and the tables are nan.
-
-    Parameters
-    ----------
-    y : ndarray
-        Fast-rate outputs, ``(runs, N)``.
-    p : int
-        Fast-sampling ratio.
-    options : IdentifyOptions
-        Orders and delay given a priori (those given are not selected).
-    fit : DenominatorFit
-        The denominator estimate whose criterion is tabulated.
-    rule : SelectionRule, optional
-        How the tables are read (default: ``SelectionRule()``).
-    pooled : bool, optional
-        Re-estimate A from every quiet phase ``nb + 1 .. p`` for step (iii).
-    cache : dict, optional
-        A record's cache, for moments shared between methods.
     """
     R = y.shape[0]
     if options.na is not None and options.tau is not None and options.nb is not None:
@@ -660,14 +637,11 @@ def _runs(a: np.ndarray, idx: np.ndarray) -> np.ndarray:
     return out
 
 
+@parameters(
+    _PARAMS, keys=("ndarray", "Per-run keys of equal length (e.g. ``na``, ``tau``, ``nb``).")
+)
 def groups(*keys: np.ndarray) -> list[tuple[tuple[int, ...], np.ndarray]]:
-    """Runs grouped by equal keys: ``[((k1, k2, ..), indices), ...]``.
-
-    Parameters
-    ----------
-    *keys : ndarray
-        Per-run keys of equal length (e.g. ``na``, ``tau``, ``nb``).
-    """
+    """Runs grouped by equal keys: ``[((k1, k2, ..), indices), ...]``."""
     stacked = np.stack(keys, axis=1)
     uniq, inv = np.unique(stacked, axis=0, return_inverse=True)
     return [
@@ -675,33 +649,24 @@ def groups(*keys: np.ndarray) -> list[tuple[tuple[int, ...], np.ndarray]]:
     ]
 
 
+@parameters(
+    _PARAMS,
+    b=("ndarray", "Numerator coefficients, ``(runs, nb)``."),
+    tol=("float, optional", "``|B(1)|`` at or below this counts as zero."),
+)
 def check_a4(b: np.ndarray, tol: float = 1e-6) -> np.ndarray:
-    """True where ``B(1) = sum b`` is (numerically) zero: assumption A4 fails.
-
-    Parameters
-    ----------
-    b : ndarray
-        Numerator coefficients, ``(runs, nb)``.
-    tol : float, optional
-        ``|B(1)|`` at or below ``tol`` times ``sum |b_l|`` counts as zero (relative).
-    """
+    """True where ``B(1) = sum b`` is (numerically) zero: assumption A4 fails."""
     return np.abs(b.sum(axis=1)) <= tol * np.abs(b).sum(axis=1)
 
 
+@parameters(
+    _PARAMS,
+    record=("Record", "The record the estimate is for (its runs and slow samples)."),
+    reason=("str", "Why there is no estimate, kept for every run."),
+    info=("Any", "Entries of ``Estimate.info``."),
+)
 def empty_estimate(method: str, record: Record, reason: str, **info: Any) -> Estimate:
-    """An all-nan estimate flagged not identifiable (never an exception that stops a sweep).
-
-    Parameters
-    ----------
-    method : str
-        The method's name (``Estimate.method``).
-    record : Record
-        The record the estimate is for (its runs and slow samples).
-    reason : str
-        Why there is no estimate, kept for every run.
-    **info : Any
-        Entries of ``Estimate.info``.
-    """
+    """An all-nan estimate flagged not identifiable (never an exception that stops a sweep)."""
     R, K = record.runs, record.n_slow
     return Estimate(
         method=method,
@@ -718,35 +683,26 @@ def empty_estimate(method: str, record: Record, reason: str, **info: Any) -> Est
     )
 
 
+@parameters(
+    _PARAMS,
+    parts=("sequence of ndarray", "2-D arrays with equal row counts."),
+    width=("int", "Columns of the result (at least each part's)."),
+)
 def pad(parts: Sequence[np.ndarray], width: int) -> np.ndarray:
-    """Zero-pad 2-D arrays on the right to ``width`` columns.
-
-    Parameters
-    ----------
-    parts : sequence of ndarray
-        2-D arrays with equal row counts.
-    width : int
-        Columns of the result (at least each part's).
-    """
+    """Zero-pad 2-D arrays on the right to ``width`` columns."""
     return np.stack([np.pad(p, (0, width - p.size)) for p in parts])
 
 
+@parameters(
+    _PARAMS,
+    method=("Identifier", "The method instance."),
+    record=("Record", "The record; ``x`` and ``r`` reach the method only if it needs them."),
+    truth=("Truth, optional", "The simulation's truth; passed only to a method that needs it."),
+)
 def identify(
     method: Identifier, record: Record, options: IdentifyOptions, truth: Truth | None = None
 ) -> Estimate:
-    """Run ``method`` on ``record`` showing it only what it declared it needs.
-
-    Parameters
-    ----------
-    method : Identifier
-        The method instance.
-    record : Record
-        The record; ``x`` and ``r`` reach the method only if it needs them.
-    options : IdentifyOptions
-        What is known a priori.
-    truth : Truth, optional
-        The simulation's truth; passed only to a method that needs it.
-    """
+    """Run ``method`` on ``record`` showing it only what it declared it needs."""
     rec = record.withhold(method.needs)
     missing = [s for s in ("x", "r") if s in method.needs and getattr(rec, s) is None]
     if missing:
@@ -760,6 +716,12 @@ def identify(
     return est
 
 
+@parameters(
+    _PARAMS,
+    est=("Any", "What the method returned."),
+    record=("Record", "The record it was given."),
+    name=("str", "The method's name, for the message."),
+)
 def check_estimate(est: Any, record: Record, name: str) -> None:
     """Raise :class:`~hbench.errors.MethodError` unless ``est`` is an :class:`Estimate` of the
     shapes :class:`Estimate` documents for ``record`` (``R`` runs, ``K`` slow samples).
@@ -768,15 +730,6 @@ def check_estimate(est: Any, record: Record, name: str) -> None:
     malformed estimate fails with a message naming it, instead of an error further down (in the
     metrics, or in another method's rows). Values are not judged here: ``nan`` is how an
     estimate says the record does not determine something.
-
-    Parameters
-    ----------
-    est : Any
-        What the method returned.
-    record : Record
-        The record it was given.
-    name : str
-        The method's name, for the message.
     """
     if not isinstance(est, Estimate):
         raise MethodError(
@@ -838,6 +791,7 @@ NO_ESTIMATE = "the method returned no finite inner-signal estimate U for this ru
 NON_FINITE = "non-finite parameters (an infinite a or b)"
 
 
+@parameters(_PARAMS, est=("Estimate", "A checked estimate (:func:`check_estimate`)."))
 def run_status(est: Estimate) -> tuple[np.ndarray, list[str]]:
     """Each run's status and reason: ``ok`` (with the method's note, if any), ``not-identifiable``
     (the method's flag and its reason), or ``failed`` where the method called the run
@@ -847,11 +801,6 @@ def run_status(est: Estimate) -> tuple[np.ndarray, list[str]]:
 
     A run without ``U`` whose method says why (bai-fu's refused unstable inverse) stays ``ok``:
     its parameters, orders and delay are estimates the bias and structure tables count.
-
-    Parameters
-    ----------
-    est : Estimate
-        A checked estimate (:func:`check_estimate`).
     """
     ok = np.asarray(est.identifiable, bool)
     reasons = [str(r) for r in est.reason]
@@ -905,28 +854,19 @@ REFUSALS = {
 }
 
 
+@parameters(
+    _PARAMS,
+    y=("ndarray", "The group's fast-rate outputs, ``(runs, N)``."),
+    w=("ndarray", "``A(q) y``, ``(runs, N)``."),
+    a=("ndarray", "Denominators with the leading 1, ``(runs, na + 1)``."),
+    b=("ndarray", "Numerators with ``b1 = 1``, ``(runs, nb)``."),
+    tau=("int", "Delay within a period."),
+    t_min=("int", "First fast sample where ``w`` is defined."),
+)
 def inner_ls(
     y: np.ndarray, w: np.ndarray, a: np.ndarray, b: np.ndarray, p: int, tau: int, t_min: int
 ) -> tuple[np.ndarray, int, str]:
-    """The paper's inner-signal estimate, eq. (27), solved in O(K) (tridiagonal).
-
-    Parameters
-    ----------
-    y : ndarray
-        The group's fast-rate outputs, ``(runs, N)``.
-    w : ndarray
-        ``A(q) y``, ``(runs, N)``.
-    a : ndarray
-        Denominators with the leading 1, ``(runs, na + 1)``.
-    b : ndarray
-        Numerators with ``b1 = 1``, ``(runs, nb)``.
-    p : int
-        Fast-sampling ratio.
-    tau : int
-        Delay within a period.
-    t_min : int
-        First fast sample where ``w`` is defined.
-    """
+    """The paper's inner-signal estimate, eq. (27), solved in O(K) (tridiagonal)."""
     sys = pp.simo_system(w, p, tau, t_min)
     h0, h1 = pp.simo_channels(b, p)
     return pp.inner_signal_ls(sys, h0, h1), sys.n0 - 1, "ls27"
@@ -986,6 +926,21 @@ def inverse_inner(choice: str) -> InnerSignal:
     return inner
 
 
+@parameters(
+    _PARAMS,
+    record=("Record", "The record (``y`` is read; ``record.cache`` holds shared tables)."),
+    denominator=("DenominatorFit", "``(reg, idx) -> (theta, sigma2)``: A and the noise variance."),
+    numerator=("NumeratorFit", "``(dw, tau, nb, sigma2, idx) -> b`` with ``b1 = 1``."),
+    inner=("InnerSignal, optional", "The inner-signal step (default: eq. (27), :func:`inner_ls`)."),
+    pooled=("bool, optional", "The denominator from all quiet phases instead of phase p alone."),
+    rule=("SelectionRule, optional", "How the selection tables are read."),
+    info=("dict, optional", "Entries of ``Estimate.info`` (the method's options)."),
+    selector=("DenominatorFit, optional", "The denominator estimate of the structure selection."),
+    refine=(
+        "callable, optional",
+        "``(reg, idx, tau, nb) -> (theta, sigma2)`` for the final estimate.",
+    ),
+)
 def blind_fit(
     method: str,
     record: Record,
@@ -1012,31 +967,6 @@ def blind_fit(
     selected structure on one record (kept in ``record.cache``) instead of computing the same
     tables again: such a function sees the regression (built from ``y``) and nothing else. A
     closure may read more (the reference, say) and is never shared.
-
-    Parameters
-    ----------
-    method : str
-        The method's name (``Estimate.method``).
-    record : Record
-        The record (``y`` is read; ``record.cache`` holds shared tables).
-    options : IdentifyOptions
-        What is known a priori.
-    denominator : DenominatorFit
-        ``(reg, idx) -> (theta, sigma2)``: A and the noise variance.
-    numerator : NumeratorFit
-        ``(dw, tau, nb, sigma2, idx) -> b`` with ``b1 = 1``.
-    inner : InnerSignal, optional
-        The inner-signal step (default: eq. (27), :func:`inner_ls`).
-    pooled : bool, optional
-        The denominator from all quiet phases instead of phase p alone.
-    rule : SelectionRule, optional
-        How the selection tables are read.
-    info : dict, optional
-        Entries of ``Estimate.info`` (the method's options).
-    selector : DenominatorFit, optional
-        The denominator estimate of the structure selection.
-    refine : callable, optional
-        ``(reg, idx, tau, nb) -> (theta, sigma2)`` for the final estimate.
     """
     p, R, K = record.p, record.runs, record.n_slow
     why = check_identifiable(p, options) or check_length(K, p, options)

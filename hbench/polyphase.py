@@ -22,63 +22,69 @@ from scipy import signal
 from scipy.linalg import lapack
 
 from hbench import kernels
+from hbench.docparams import parameters
 from hbench.ordered import cholesky_inverse, ordered_products
 
 _RCOND = 1e-12
 
 
+#: numpydoc descriptions of the parameters shared here (:func:`hbench.docparams.parameters`)
+_PARAMS: dict[str, tuple[str, str]] = {
+    "N": ("int", "Fast samples of the record."),
+    "p": ("int", "Fast-sampling ratio."),
+    "shift": ("int", "Shift of the phases (the delay tau within a period)."),
+    "na": ("int", "Denominator order."),
+    "reg": ("QuietRegression", "The quiet-phase equations (13)."),
+    "r": ("ndarray", "Reference at the slow rate, ``(runs, K)``."),
+    "m": ("int", "Number of instruments."),
+    "lag0": ("int, optional", "Lag of the first instrument (the paper's 1)."),
+    "a": ("ndarray", "``(runs, na + 1)`` with the leading 1."),
+    "y": ("ndarray", "Fast-rate outputs, ``(runs, N)``."),
+    "dw": ("ndarray", "``Delta w`` with ``w = A(q) y``, ``(runs, N)``."),
+    "t_min": ("int", "First fast sample that is defined."),
+    "nb": ("int", "Numerator order."),
+    "b": ("ndarray", "Numerators ``(runs, nb)``."),
+    "sys": ("SimoSystem", "The SIMO blocks of (23) (:func:`simo_system`)."),
+    "h0": ("ndarray", "``h_i(0)``, ``(runs, p)`` (:func:`simo_channels`)."),
+    "h1": ("ndarray", "``h_i(1)``, ``(runs, p)``."),
+}
+
+
 # --- indexing ----------------------------------------------------------------------------------
 
 
+@parameters(
+    _PARAMS,
+    l=("int", "Phase, 1 .. p."),
+    t_min=("int", "First admissible fast sample."),
+    k_min=("int, optional", "First admissible slow index."),
+)
 def phase_times(N: int, p: int, l: int, shift: int, t_min: int, k_min: int = 0) -> np.ndarray:
-    """Slow indices ``k`` whose sample ``t = k p + l + shift`` satisfies ``t_min <= t < N``.
-
-    Parameters
-    ----------
-    N : int
-        Fast samples of the record.
-    p : int
-        Fast-sampling ratio.
-    l : int
-        Phase, 1 .. p.
-    shift : int
-        Shift of the phases (the delay tau within a period).
-    t_min : int
-        First admissible fast sample.
-    k_min : int, optional
-        First admissible slow index.
-    """
+    """Slow indices ``k`` whose sample ``t = k p + l + shift`` satisfies ``t_min <= t < N``."""
     k0 = max(k_min, -(-(t_min - l - shift) // p))
     k1 = (N - 1 - l - shift) // p
     return np.arange(k0, k1 + 1) if k1 >= k0 else np.zeros(0, dtype=int)
 
 
+@parameters(_PARAMS, z=("ndarray", "Signals, time on the last axis."))
 def delta(z: np.ndarray) -> np.ndarray:
-    """``Delta z(t) = z(t) - z(t-1)`` with ``Delta z(0) = nan`` (same length, time last).
-
-    Parameters
-    ----------
-    z : ndarray
-        Signals, time on the last axis.
-    """
+    """``Delta z(t) = z(t) - z(t-1)`` with ``Delta z(0) = nan`` (same length, time last)."""
     out = np.empty_like(z, dtype=float)
     out[..., 0] = np.nan
     np.subtract(z[..., 1:], z[..., :-1], out=out[..., 1:])
     return out
 
 
+@parameters(
+    _PARAMS,
+    z=("ndarray", "Signals ``(runs, N)``."),
+    block=("int, optional", "Samples scanned at a time."),
+)
 def first_valid(z: np.ndarray, block: int = 64) -> int:
     """Index of the first sample that is defined (not nan) in every run of ``z``.
 
     Scans ``block`` samples at a time from the start (a record's undefined samples are its
     first few), so a long record is not read to the end.
-
-    Parameters
-    ----------
-    z : ndarray
-        Signals ``(runs, N)``.
-    block : int, optional
-        Samples scanned at a time.
     """
     N = z.shape[-1]
     for t0 in range(0, N, block):
@@ -279,6 +285,16 @@ class QuietRegression:
         return self._cache[key]
 
 
+@parameters(
+    _PARAMS,
+    dy=("ndarray", "``delta(y)``, ``(runs, N)``."),
+    phases=("sequence of int", "The phases ``l`` (1-based) whose equations are stacked."),
+    moments=("LagMoments, optional", "Moments of the same ``dy`` (rows and Gram shared)."),
+    fast=(
+        "bool, optional",
+        "Residual mean squares from the moments (see :class:`QuietRegression`).",
+    ),
+)
 def quiet_regression(
     dy: np.ndarray,
     p: int,
@@ -292,23 +308,6 @@ def quiet_regression(
 
     ``dy`` is ``delta(y)``. ``moments`` (computed from the same ``dy``) fixes the rows to its
     periods and shares its Gram; without it one is computed with ``L = na``.
-
-    Parameters
-    ----------
-    dy : ndarray
-        ``delta(y)``, ``(runs, N)``.
-    p : int
-        Fast-sampling ratio.
-    na : int
-        Denominator order.
-    phases : sequence of int
-        The phases ``l`` (1-based) whose equations are stacked.
-    shift : int
-        Shift of the phases (the delay tau within a period).
-    moments : LagMoments, optional
-        Moments of the same ``dy`` (rows and Gram shared).
-    fast : bool, optional
-        Residual mean squares from the moments (see :class:`QuietRegression`).
     """
     lm = LagMoments(dy, p, na) if moments is None else moments
     return QuietRegression(dy, lm, na, phases, shift, fast)
@@ -333,14 +332,9 @@ def _pinv_sym(Rm: np.ndarray) -> np.ndarray:
     return X
 
 
+@parameters(_PARAMS)
 def ols(reg: QuietRegression) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Ordinary LS of (13): ``(theta, residual mean square, g11)``; biased under noise.
-
-    Parameters
-    ----------
-    reg : QuietRegression
-        The quiet-phase equations (13).
-    """
+    """Ordinary LS of (13): ``(theta, residual mean square, g11)``; biased under noise."""
     theta, ms = reg.least_squares()
     return theta.copy(), ms.copy(), reg.inverse()[:, 0, 0].copy()
 
@@ -349,6 +343,12 @@ def ols(reg: QuietRegression) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 NO_ROOT = ("clip", "real", "modulus", "zero")
 
 
+@parameters(
+    _PARAMS,
+    s2=("ndarray", "OLS residual mean square per run."),
+    g11=("ndarray", "``(R^-1)_{11}`` per run."),
+    no_root=("str, optional", "``clip``, ``real``, ``modulus`` or ``zero`` (above)."),
+)
 def noise_variance(s2: np.ndarray, g11: np.ndarray, no_root: str = "clip") -> np.ndarray:
     """Eq. (15), corrected: sigma^2 from the OLS residual mean square ``s2`` and ``g11``.
 
@@ -364,15 +364,6 @@ def noise_variance(s2: np.ndarray, g11: np.ndarray, no_root: str = "clip") -> np
     form ``(1 - sqrt(.)) / g11``); ``modulus`` their modulus ``sqrt(s2 / g11)``, which gives the
     compensated residual ``s2 + g11 |x|^2 = 2 s2`` (as complex arithmetic with ``|e|^2`` would);
     ``zero`` no compensation, ``x = 0``.
-
-    Parameters
-    ----------
-    s2 : ndarray
-        OLS residual mean square per run.
-    g11 : ndarray
-        ``(R^-1)_{11}`` per run.
-    no_root : str, optional
-        ``clip``, ``real``, ``modulus`` or ``zero`` (above).
     """
     disc = 1.0 - g11 * s2
     x = s2 / (1.0 + np.sqrt(np.clip(disc, 0.0, None)))
@@ -392,19 +383,15 @@ def noise_variance(s2: np.ndarray, g11: np.ndarray, no_root: str = "clip") -> np
     return np.where(none, other, x)
 
 
+@parameters(
+    _PARAMS, no_root=("str, optional", "Eq. (15) without a real root (:func:`noise_variance`).")
+)
 def bias_compensated(reg: QuietRegression, no_root: str = "clip") -> tuple[np.ndarray, np.ndarray]:
     """Eqs. (14)-(15): ``theta = R^-1 (f - [sigma^2, 0, ..., 0])`` and ``sigma^2``.
 
     ``E{phi(k) Delta e(kp+l)} = [+sigma^2, 0, ..., 0]`` because ``phi_1 = -Delta y(t-1)`` holds
     ``-e(t-1)`` and ``Delta e(t) = e(t) - e(t-1)``; the compensation therefore subtracts it.
     ``no_root``: eq. (15) without a real root (:func:`noise_variance`).
-
-    Parameters
-    ----------
-    reg : QuietRegression
-        The quiet-phase equations (13).
-    no_root : str, optional
-        Eq. (15) without a real root (:func:`noise_variance`).
     """
     Rinv = reg.inverse()
     theta_ols, ms = reg.least_squares()
@@ -413,22 +400,11 @@ def bias_compensated(reg: QuietRegression, no_root: str = "clip") -> tuple[np.nd
     return theta, sigma2
 
 
+@parameters(_PARAMS, k=("ndarray of int", "Slow indices of the equations."))
 def instruments(
     r: np.ndarray, k: np.ndarray, m: int, lag0: int = 1
 ) -> tuple[np.ndarray, np.ndarray]:
-    """``zeta(k) = [r(k - lag0), .., r(k - lag0 - m + 1)]`` (eq. 20: lag0 = 1) and a row mask.
-
-    Parameters
-    ----------
-    r : ndarray
-        Reference at the slow rate, ``(runs, K)``.
-    k : ndarray of int
-        Slow indices of the equations.
-    m : int
-        Number of instruments.
-    lag0 : int, optional
-        Lag of the first instrument (the paper's 1).
-    """
+    """``zeta(k) = [r(k - lag0), .., r(k - lag0 - m + 1)]`` (eq. 20: lag0 = 1) and a row mask."""
     lags = lag0 + np.arange(m)
     idx = k[:, None] - lags[None, :]
     ok = np.all((idx >= 0) & (idx < r.shape[1]), axis=1)
@@ -439,23 +415,13 @@ def instruments(
 IV_BLOCK = 16
 
 
+@parameters(_PARAMS)
 def iv_moments(reg: QuietRegression, r: np.ndarray, m: int, lag0: int = 1) -> np.ndarray:
     """``(1/n) sum zeta [Delta y, phi^T]`` over the rows with every instrument defined.
 
     Phase by phase (the rows of a phase are consecutive periods): the instruments and the lags
     of ``Delta y`` are strided windows, multiplied as ``Z^T [Delta y, -phi]`` by one batched
     product per phase. Returns ``(runs, m, na + 1)``.
-
-    Parameters
-    ----------
-    reg : QuietRegression
-        The quiet-phase equations (13).
-    r : ndarray
-        Reference at the slow rate, ``(runs, K)``.
-    m : int
-        Number of instruments.
-    lag0 : int, optional
-        Lag of the first instrument (the paper's 1).
     """
     p, na, K = reg.lm.p, reg.na, r.shape[1]
     R = r.shape[0]
@@ -507,36 +473,19 @@ def _instrument_products(ZT: np.ndarray, Y: np.ndarray) -> np.ndarray:
     return np.matmul(np.ascontiguousarray(ZT), Y)
 
 
+@parameters(_PARAMS)
 def iv(reg: QuietRegression, r: np.ndarray, m: int, lag0: int = 1) -> np.ndarray:
-    """Eq. (20): extended IV ``theta = [(1/n) sum zeta phi^T]^+ (1/n) sum zeta Delta y``.
-
-    Parameters
-    ----------
-    reg : QuietRegression
-        The quiet-phase equations (13).
-    r : ndarray
-        Reference at the slow rate, ``(runs, K)``.
-    m : int
-        Number of instruments.
-    lag0 : int, optional
-        Lag of the first instrument (the paper's 1).
-    """
+    """Eq. (20): extended IV ``theta = [(1/n) sum zeta phi^T]^+ (1/n) sum zeta Delta y``."""
     G = iv_moments(reg, r, m, lag0)
     return np.einsum("rim,rm->ri", np.linalg.pinv(G[:, :, 1:], rcond=_RCOND), G[:, :, 0])
 
 
+@parameters(
+    _PARAMS, ms=("ndarray", "Residual mean square per run."), K=("int", "Rows of the regression.")
+)
 def aic(ms: np.ndarray, na: int, K: int) -> np.ndarray:
     """Eq. (19): ``V(na) = (1 + 2 na / K) (1/K) sum (Delta y - phi^T theta)^2`` from the residual
     mean square ``ms`` over ``K`` rows.
-
-    Parameters
-    ----------
-    ms : ndarray
-        Residual mean square per run.
-    na : int
-        Denominator order.
-    K : int
-        Rows of the regression.
     """
     return (1.0 + 2.0 * na / K) * ms
 
@@ -544,34 +493,24 @@ def aic(ms: np.ndarray, na: int, K: int) -> np.ndarray:
 # --- numerator (eqs. 17, 18, 21) ---------------------------------------------------------------
 
 
+@parameters(
+    _PARAMS, a=("ndarray", "``(runs, N)``."), t=("ndarray of int", "Sample indices, any shape.")
+)
 def take_periods(a: np.ndarray, t: np.ndarray) -> np.ndarray:
     """``a[:, t]`` for an index array ``t`` of any shape, in C order.
 
     ``a[:, t]`` lays the result out with the run axis innermost when ``t`` is 2-D, but not for
     one run; reductions and products then sum in another order, and a run's numbers would
     depend on the runs batched with it. ``np.take`` gives the same layout for any batch.
-
-    Parameters
-    ----------
-    a : ndarray
-        ``(runs, N)``.
-    t : ndarray of int
-        Sample indices, any shape.
     """
     return np.take(a, t, axis=1)
 
 
+@parameters(_PARAMS)
 def filtered_output(y: np.ndarray, a: np.ndarray) -> np.ndarray:
     """``w(t) = A(q) y(t)`` per run (``a`` of shape ``(runs, na + 1)``); ``nan`` for ``t < na``.
 
     Compiled when :mod:`hbench.kernels` is built (the same bits as the numpy lines below).
-
-    Parameters
-    ----------
-    y : ndarray
-        Fast-rate outputs, ``(runs, N)``.
-    a : ndarray
-        ``(runs, na + 1)`` with the leading 1.
     """
     compiled = kernels.filtered_output(y, a)
     if compiled is not None:
@@ -586,16 +525,10 @@ def filtered_output(y: np.ndarray, a: np.ndarray) -> np.ndarray:
     return w
 
 
+@parameters(_PARAMS)
 def filtered_output_and_delta(y: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(w, delta(w))`` with ``w =`` :func:`filtered_output` ``(y, a)``: compiled in one pass
     per run when :mod:`hbench.kernels` is built (the same bits as the two calls).
-
-    Parameters
-    ----------
-    y : ndarray
-        Fast-rate outputs, ``(runs, N)``.
-    a : ndarray
-        ``(runs, na + 1)`` with the leading 1.
     """
     compiled = kernels.filtered_output_and_delta(y, a)
     if compiled is not None:
@@ -604,46 +537,26 @@ def filtered_output_and_delta(y: np.ndarray, a: np.ndarray) -> tuple[np.ndarray,
     return w, delta(w)
 
 
+@parameters(_PARAMS)
 def common_periods(dw: np.ndarray, p: int, shift: int, t_min: int, nb: int) -> np.ndarray:
-    """Slow indices k whose phases 1 .. nb all have a defined sample (the numerator's rows).
-
-    Parameters
-    ----------
-    dw : ndarray
-        ``Delta w`` with ``w = A(q) y``, ``(runs, N)``.
-    p : int
-        Fast-sampling ratio.
-    shift : int
-        Shift of the phases (the delay tau within a period).
-    t_min : int
-        First fast sample that is defined.
-    nb : int
-        Numerator order.
-    """
+    """Slow indices k whose phases 1 .. nb all have a defined sample (the numerator's rows)."""
     k = phase_times(dw.shape[1], p, 1, shift, t_min)
     k_last = phase_times(dw.shape[1], p, nb, shift, t_min)
     return np.intersect1d(k, k_last)
 
 
+@parameters(
+    _PARAMS,
+    a=("ndarray", "``(runs, N)``."),
+    k=("ndarray of int", "Slow indices."),
+    width=("int", "Phases taken per period."),
+)
 def period_block(a: np.ndarray, p: int, k: np.ndarray, shift: int, width: int) -> np.ndarray:
     """``a[:, k p + shift + l]`` for ``l = 1 .. width``, shape ``(runs, len(k), width)``.
 
     A strided view when ``k`` is consecutive (as :func:`common_periods` gives) and ``a`` is laid
     out row by row, else a C-order gather (:func:`take_periods`). Elementwise results computed
     from either are the same C-order arrays, so reductions over them sum in the same order.
-
-    Parameters
-    ----------
-    a : ndarray
-        ``(runs, N)``.
-    p : int
-        Fast-sampling ratio.
-    k : ndarray of int
-        Slow indices.
-    shift : int
-        Shift of the phases (the delay tau within a period).
-    width : int
-        Phases taken per period.
     """
     row_major = (
         a.ndim == 2
@@ -658,44 +571,21 @@ def period_block(a: np.ndarray, p: int, k: np.ndarray, shift: int, width: int) -
     return take_periods(a, t)
 
 
+@parameters(_PARAMS)
 def phase_variances(dw: np.ndarray, p: int, shift: int, t_min: int) -> np.ndarray:
-    """``Var{Delta w^(l)}``, l = 1..p (the paper's Table 2): mean square over common periods.
-
-    Parameters
-    ----------
-    dw : ndarray
-        ``Delta w`` with ``w = A(q) y``, ``(runs, N)``.
-    p : int
-        Fast-sampling ratio.
-    shift : int
-        Shift of the phases (the delay tau within a period).
-    t_min : int
-        First fast sample that is defined.
-    """
+    """``Var{Delta w^(l)}``, l = 1..p (the paper's Table 2): mean square over common periods."""
     k = common_periods(dw, p, shift, t_min, p)
     block = period_block(dw, p, k, shift, p)
     compiled = kernels.period_mean_squares(block)  # the same sums, term after term
     return compiled if compiled is not None else np.mean(np.square(block), axis=1)
 
 
+@parameters(_PARAMS)
 def filtered_phase_variances(
     y: np.ndarray, a: np.ndarray, p: int, shift: int, t_min: int
 ) -> np.ndarray:
     """:func:`phase_variances` of ``delta(filtered_output(y, a))``; compiled, the kernel forms
     neither ``w`` nor ``Delta w`` (the same numbers: the same operations in the same order).
-
-    Parameters
-    ----------
-    y : ndarray
-        Fast-rate outputs, ``(runs, N)``.
-    a : ndarray
-        ``(runs, na + 1)`` with the leading 1.
-    p : int
-        Fast-sampling ratio.
-    shift : int
-        Shift of the phases (the delay tau within a period).
-    t_min : int
-        First fast sample that is defined.
     """
     k = common_periods(y, p, shift, t_min, p)
     if k.size and int(k[-1] - k[0]) == k.size - 1:
@@ -705,6 +595,7 @@ def filtered_phase_variances(
     return phase_variances(delta(filtered_output(y, a)), p, shift, t_min)
 
 
+@parameters(_PARAMS, sigma2=("ndarray", "Noise variance per run (eq. 15)."))
 def b_lsm(
     dw: np.ndarray, p: int, shift: int, nb: int, sigma2: np.ndarray, t_min: int
 ) -> np.ndarray:
@@ -714,21 +605,6 @@ def b_lsm(
 
     ``E{Delta e(kp+1) Delta e(kp+2)} = -sigma^2`` and ``E{Delta e^2} = 2 sigma^2`` give those signs.
     Returns ``(runs, nb)`` with ``b1 = 1``.
-
-    Parameters
-    ----------
-    dw : ndarray
-        ``Delta w`` with ``w = A(q) y``, ``(runs, N)``.
-    p : int
-        Fast-sampling ratio.
-    shift : int
-        Shift of the phases (the delay tau within a period).
-    nb : int
-        Numerator order.
-    sigma2 : ndarray
-        Noise variance per run (eq. 15).
-    t_min : int
-        First fast sample that is defined.
     """
     k = common_periods(dw, p, shift, t_min, nb)
     D = period_block(dw, p, k, shift, nb)  # (R, n, nb)
@@ -741,49 +617,17 @@ def b_lsm(
     return b
 
 
+@parameters(_PARAMS)
 def b_ols(dw: np.ndarray, p: int, shift: int, nb: int, t_min: int) -> np.ndarray:
-    """LS ratio of active phases, ``b_l = sum dw1 dwl / sum dw1^2`` (the noise-free design).
-
-    Parameters
-    ----------
-    dw : ndarray
-        ``Delta w`` with ``w = A(q) y``, ``(runs, N)``.
-    p : int
-        Fast-sampling ratio.
-    shift : int
-        Shift of the phases (the delay tau within a period).
-    nb : int
-        Numerator order.
-    t_min : int
-        First fast sample that is defined.
-    """
+    """LS ratio of active phases, ``b_l = sum dw1 dwl / sum dw1^2`` (the noise-free design)."""
     return b_lsm(dw, p, shift, nb, np.zeros(dw.shape[0]), t_min)
 
 
+@parameters(_PARAMS)
 def b_iv(
     dw: np.ndarray, r: np.ndarray, p: int, shift: int, nb: int, m: int, t_min: int, lag0: int = 1
 ) -> np.ndarray:
-    """Eq. (21): ``b_l = [(1/K) sum zeta dw1]^+ (1/K) sum zeta dwl``, ``zeta(k) = r(k-1..k-m)``.
-
-    Parameters
-    ----------
-    dw : ndarray
-        ``Delta w`` with ``w = A(q) y``, ``(runs, N)``.
-    r : ndarray
-        Reference at the slow rate, ``(runs, K)``.
-    p : int
-        Fast-sampling ratio.
-    shift : int
-        Shift of the phases (the delay tau within a period).
-    nb : int
-        Numerator order.
-    m : int
-        Number of instruments.
-    t_min : int
-        First fast sample that is defined.
-    lag0 : int, optional
-        Lag of the first instrument (the paper's 1).
-    """
+    """Eq. (21): ``b_l = [(1/K) sum zeta dw1]^+ (1/K) sum zeta dwl``, ``zeta(k) = r(k-1..k-m)``."""
     k = common_periods(dw, p, shift, t_min, nb)
     if k.size and int(k[-1] - k[0]) == k.size - 1:  # consecutive (as common_periods gives)
         k = k[(k - lag0 - m + 1 >= 0) & (k - lag0 < r.shape[1])]  # every instrument defined
@@ -805,25 +649,13 @@ def b_iv(
     return b
 
 
+@parameters(_PARAMS, b=("ndarray", "Numerators ``(runs, nb)`` with ``b1 = 1``."))
 def v_eiv(dw: np.ndarray, p: int, shift: int, b: np.ndarray, t_min: int) -> np.ndarray:
     """The generalised prediction error of the static EIV systems (17), Section 6 step (iv):
     ``V_EIV(l) = (1/K) sum (Delta w(kp + l) - b_l Delta w(kp + 1))^2 / (b_l^2 + 1)`` for
     ``l = 2 .. nb`` (Sima & Van Huffel 2004, Definition 3), over the numerator's rows
     (:func:`common_periods`). ``b`` is ``(runs, nb)``; returns ``(runs, nb)`` with column 0
     (``b_1 = 1``, no equation) ``nan``.
-
-    Parameters
-    ----------
-    dw : ndarray
-        ``Delta w`` with ``w = A(q) y``, ``(runs, N)``.
-    p : int
-        Fast-sampling ratio.
-    shift : int
-        Shift of the phases (the delay tau within a period).
-    b : ndarray
-        Numerators ``(runs, nb)`` with ``b1 = 1``.
-    t_min : int
-        First fast sample that is defined.
     """
     nb = b.shape[1]
     out = np.full(b.shape, np.nan)
@@ -841,16 +673,9 @@ def v_eiv(dw: np.ndarray, p: int, shift: int, b: np.ndarray, t_min: int) -> np.n
 # --- inner signal (eqs. 23-27) -----------------------------------------------------------------
 
 
+@parameters(_PARAMS)
 def simo_channels(b: np.ndarray, p: int) -> tuple[np.ndarray, np.ndarray]:
-    """Eq. (25): ``h_i(0) = b_1 + .. + b_i`` and ``h_i(1) = b_{i+1} + .. + b_nb``, i = 1..p.
-
-    Parameters
-    ----------
-    b : ndarray
-        Numerators ``(runs, nb)``.
-    p : int
-        Fast-sampling ratio.
-    """
+    """Eq. (25): ``h_i(0) = b_1 + .. + b_i`` and ``h_i(1) = b_{i+1} + .. + b_nb``, i = 1..p."""
     R, nb = b.shape
     bp = np.zeros((R, p))
     bp[:, : min(nb, p)] = b[:, :p]
@@ -859,6 +684,13 @@ def simo_channels(b: np.ndarray, p: int) -> tuple[np.ndarray, np.ndarray]:
     return h0, h1
 
 
+@parameters(
+    _PARAMS,
+    lower=("ndarray", "Sub-diagonal, ``(R, M-1)``."),
+    diag=("ndarray", "Diagonal, ``(R, M)``."),
+    upper=("ndarray", "Super-diagonal, ``(R, M-1)``."),
+    rhs=("ndarray", "Right-hand sides, ``(R, M)``."),
+)
 def solve_tridiagonal(
     lower: np.ndarray, diag: np.ndarray, upper: np.ndarray, rhs: np.ndarray
 ) -> np.ndarray:
@@ -870,17 +702,6 @@ def solve_tridiagonal(
     the very arithmetic of its own solve); runs with a non-finite entry, runs LAPACK finds not
     positive definite (each then solved alone) and unsymmetric systems take this loop. A run's
     numbers never depend on the other runs of the batch.
-
-    Parameters
-    ----------
-    lower : ndarray
-        Sub-diagonal, ``(R, M-1)``.
-    diag : ndarray
-        Diagonal, ``(R, M)``.
-    upper : ndarray
-        Super-diagonal, ``(R, M-1)``.
-    rhs : ndarray
-        Right-hand sides, ``(R, M)``.
     """
     R, M = diag.shape
     if lower is upper and M > 1:
@@ -983,40 +804,20 @@ class SimoSystem:
         return self._W
 
 
+@parameters(_PARAMS)
 def simo_periods(N: int, p: int, shift: int, t_min: int) -> tuple[int, int]:
     """``(n0, M)``: the first period and the number of periods of :func:`simo_system` for a
     record of ``N`` fast samples (without arranging the blocks).
-
-    Parameters
-    ----------
-    N : int
-        Fast samples of the record.
-    p : int
-        Fast-sampling ratio.
-    shift : int
-        Shift of the phases (the delay tau within a period).
-    t_min : int
-        First fast sample that is defined.
     """
     n0 = max(1, -(-(t_min - 1 - shift) // p))
     n1 = (N - 1 - 1 - shift) // p  # last period with at least its first sample
     return int(n0), max(n1 - n0 + 1, 0)
 
 
+@parameters(_PARAMS, w=("ndarray", "``A(q) y``, ``(runs, N)``."))
 def simo_system(w: np.ndarray, p: int, shift: int, t_min: int) -> SimoSystem:
     """The SIMO blocks of (23) from ``w``; periods with no valid sample are dropped. The blocks
     are laid out when first used (:attr:`SimoSystem.W`).
-
-    Parameters
-    ----------
-    w : ndarray
-        ``A(q) y``, ``(runs, N)``.
-    p : int
-        Fast-sampling ratio.
-    shift : int
-        Shift of the phases (the delay tau within a period).
-    t_min : int
-        First fast sample that is defined.
     """
     N = w.shape[1]
     n0, M = simo_periods(N, p, shift, t_min)
@@ -1046,6 +847,7 @@ def _validity_patterns(valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return patterns.T, which.ravel()
 
 
+@parameters(_PARAMS)
 def inner_signal_ls(sys: SimoSystem, h0: np.ndarray, h1: np.ndarray) -> np.ndarray:
     """Eq. (27): ``U = (H^T H)^-1 H^T W`` through its tridiagonal normal equations, O(K).
 
@@ -1057,15 +859,6 @@ def inner_signal_ls(sys: SimoSystem, h0: np.ndarray, h1: np.ndarray) -> np.ndarr
     ``dpttrf``/``dpttrs`` arithmetic) or, for a run it cannot take, the Thomas loop: the compiled
     kernel (:func:`hbench.kernels.inner_signal_ls`) does the same operations, so both paths give
     the same numbers on any machine.
-
-    Parameters
-    ----------
-    sys : SimoSystem
-        The SIMO blocks of (23) (:func:`simo_system`).
-    h0 : ndarray
-        ``h_i(0)``, ``(runs, p)`` (:func:`simo_channels`).
-    h1 : ndarray
-        ``h_i(1)``, ``(runs, p)``.
     """
     R = h0.shape[0]
     M = sys.valid.shape[0]
@@ -1118,18 +911,9 @@ def _ordered_channels(W: np.ndarray, h: np.ndarray) -> np.ndarray:
     return out
 
 
+@parameters(_PARAMS)
 def inner_signal_dense(sys: SimoSystem, h0: np.ndarray, h1: np.ndarray) -> np.ndarray:
-    """Eq. (27) by a dense least-squares solve of ``H U = W`` (reference and benchmark baseline).
-
-    Parameters
-    ----------
-    sys : SimoSystem
-        The SIMO blocks of (23) (:func:`simo_system`).
-    h0 : ndarray
-        ``h_i(0)``, ``(runs, p)`` (:func:`simo_channels`).
-    h1 : ndarray
-        ``h_i(1)``, ``(runs, p)``.
-    """
+    """Eq. (27) by a dense least-squares solve of ``H U = W`` (reference and benchmark baseline)."""
     R = h0.shape[0]
     M, _p = sys.valid.shape
     out = np.empty((R, M + 1))
@@ -1142,18 +926,12 @@ def inner_signal_dense(sys: SimoSystem, h0: np.ndarray, h1: np.ndarray) -> np.nd
     return out
 
 
+@parameters(_PARAMS)
 def bezout_combiner(h0: np.ndarray, h1: np.ndarray) -> np.ndarray:
     """Minimum-norm degree-0 multichannel inverse: ``g`` with ``sum g_i h_i(0) = 1``,
     ``sum g_i h_i(1) = 0`` (Bezout identity over the polyphase channels; exists under A4).
 
     Then ``sum_i g_i w_i(n) = U(n)`` for noise-free data, whatever the phase of B.
-
-    Parameters
-    ----------
-    h0 : ndarray
-        ``h_i(0)``, ``(runs, p)`` (:func:`simo_channels`).
-    h1 : ndarray
-        ``h_i(1)``, ``(runs, p)``.
     """
     Hm = np.stack([h0, h1], axis=1)  # (R, 2, p)
     rhs = np.array([1.0, 0.0])
@@ -1162,19 +940,11 @@ def bezout_combiner(h0: np.ndarray, h1: np.ndarray) -> np.ndarray:
     return np.einsum("rai,ra->ri", Hm, lam)
 
 
+@parameters(_PARAMS)
 def inner_signal_bezout(sys: SimoSystem, h0: np.ndarray, h1: np.ndarray) -> np.ndarray:
     """``U~(n) = sum_i g_i w_i(n)`` for periods whose p samples all exist; nan elsewhere.
 
     Returns the same layout as :func:`inner_signal_ls` (``U~(n0 - 1 ..)``); ``U~(n0-1)`` is nan.
-
-    Parameters
-    ----------
-    sys : SimoSystem
-        The SIMO blocks of (23) (:func:`simo_system`).
-    h0 : ndarray
-        ``h_i(0)``, ``(runs, p)`` (:func:`simo_channels`).
-    h1 : ndarray
-        ``h_i(1)``, ``(runs, p)``.
     """
     g = bezout_combiner(h0, h1)
     full = np.all(sys.valid, axis=1)
@@ -1183,6 +953,9 @@ def inner_signal_bezout(sys: SimoSystem, h0: np.ndarray, h1: np.ndarray) -> np.n
     return np.concatenate([np.full((U.shape[0], 1), np.nan), U], axis=1)
 
 
+@parameters(
+    _PARAMS, n_first=("int", "First slow index returned."), M=("int", "Slow samples returned.")
+)
 def inner_signal_direct(
     y: np.ndarray, a: np.ndarray, b: np.ndarray, p: int, shift: int, n_first: int, M: int
 ) -> np.ndarray:
@@ -1191,23 +964,6 @@ def inner_signal_direct(
     With ``B(q) = q^-1 (b1 + b2 q^-1 + ...)``: ``u~(t - 1) = A(q)/(b1 + b2 q^-1 + ..) y~(t)``, so
     ``U~(n)`` is the filter's output at ``y~(p n + 1)``. Filtered from rest over the record.
     Returns ``U~(n_first .. n_first + M - 1)``; unstable (growing) if B is not minimum phase.
-
-    Parameters
-    ----------
-    y : ndarray
-        Fast-rate outputs, ``(runs, N)``.
-    a : ndarray
-        ``(runs, na + 1)`` with the leading 1.
-    b : ndarray
-        Numerators ``(runs, nb)``.
-    p : int
-        Fast-sampling ratio.
-    shift : int
-        Shift of the phases (the delay tau within a period).
-    n_first : int
-        First slow index returned.
-    M : int
-        Slow samples returned.
     """
     R, _N = y.shape
     out = np.full((R, M), np.nan)
@@ -1225,15 +981,11 @@ def inner_signal_direct(
     return np.where(ok, vals, out)
 
 
+@parameters(_PARAMS, c=("ndarray", "Polynomial coefficients per row, highest power first."))
 def max_root_modulus(c: np.ndarray) -> np.ndarray:
     """Largest ``|root|`` of each row's polynomial ``c[r, 0] z^n + .. + c[r, n]`` (0 if n = 0).
 
     Eigenvalues of the batched companion matrices: one LAPACK call for all runs.
-
-    Parameters
-    ----------
-    c : ndarray
-        Polynomial coefficients per row, highest power first.
     """
     R, n1 = c.shape
     if n1 < 2:
@@ -1246,6 +998,12 @@ def max_root_modulus(c: np.ndarray) -> np.ndarray:
     return np.max(np.abs(np.linalg.eigvals(comp)), axis=1)
 
 
+@parameters(
+    _PARAMS,
+    num=("ndarray", "Numerators per run, ``(runs, nn)``."),
+    den=("ndarray", "Denominators per run, ``(runs, nd)``."),
+    x=("ndarray", "Inputs per run, ``(runs, N)``."),
+)
 def batched_lfilter(num: np.ndarray, den: np.ndarray, x: np.ndarray) -> np.ndarray:
     """``scipy.signal.lfilter(num[r], den[r], x[r])`` for every run r, from rest.
 
@@ -1253,15 +1011,6 @@ def batched_lfilter(num: np.ndarray, den: np.ndarray, x: np.ndarray) -> np.ndarr
     (~40 us per run of 4000 samples) measured faster than a recursion over time vectorised
     over runs (~100 us per time step for 1000 runs). Compiled when :mod:`hbench.kernels` is
     built (scipy's arithmetic, the same bits, without a Python call per run).
-
-    Parameters
-    ----------
-    num : ndarray
-        Numerators per run, ``(runs, nn)``.
-    den : ndarray
-        Denominators per run, ``(runs, nd)``.
-    x : ndarray
-        Inputs per run, ``(runs, N)``.
     """
     compiled = kernels.lfilter_rows(num, den, x)
     if compiled is not None:
@@ -1272,21 +1021,17 @@ def batched_lfilter(num: np.ndarray, den: np.ndarray, x: np.ndarray) -> np.ndarr
     return out
 
 
+@parameters(
+    _PARAMS,
+    U_tilde=("ndarray", "``U~(n_first ..)``, ``(runs, M)``."),
+    n_first=("int", "Slow index of ``U_tilde[:, 0]``."),
+    delay_multiple=("int", "m of the delay ``tau + m p`` (assumption A3)."),
+    K=("int", "Slow samples of the record."),
+)
 def align(U_tilde: np.ndarray, n_first: int, delay_multiple: int, K: int) -> np.ndarray:
     """Place ``U~(n_first ..)`` on the record's slow grid: ``U(n) = U~(n + m)``; nan elsewhere.
 
     ``U~(n) = u(p n - m p)`` when the delay is ``tau + m p`` (assumption A3 gives m).
-
-    Parameters
-    ----------
-    U_tilde : ndarray
-        ``U~(n_first ..)``, ``(runs, M)``.
-    n_first : int
-        Slow index of ``U_tilde[:, 0]``.
-    delay_multiple : int
-        m of the delay ``tau + m p`` (assumption A3).
-    K : int
-        Slow samples of the record.
     """
     R, M = U_tilde.shape
     out = np.full((R, K), np.nan)
