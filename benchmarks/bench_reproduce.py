@@ -3,17 +3,17 @@
 the report).
 
 Targets on the idle 2-core machine: 3 s wall for the defaults, 4 s for ``--runs 1000``.
-``test_cli_startup`` times ``hbench --help`` in the same session: the share of the budget that is
+``test_cli_startup`` times ``hbench --help`` in the same run: the share of the budget that is
 the interpreter and imports rather than work.
 
 ``test_cross_relation_gram[moments]`` against ``[rows]``: ``sun-liu-sano``'s cross-relation Gram
 for 1000 runs of the paper's example, from the channels' moments (as the method computes it)
-against the equations' rows written out (``tests/test_sls.py``'s reference), same session.
+against the equations' rows written out (``tests/test_sls.py``'s reference), same run.
 
-Before/after in one session: set ``HBENCH_BENCH_BASELINE`` to the source tree of another
+Before/after in one run: set ``HBENCH_BENCH_BASELINE`` to the source tree of another
 revision (``git archive REV | tar -x -C DIR`` and its compiled ``hbench/_kernels*.so`` copied
 in); ``test_reproduce[baseline-*]`` then runs that tree with this environment's interpreter in the
-same session as ``test_reproduce[this-*]``, and the later of each pair records
+same run as ``test_reproduce[this-*]``, and the later of each pair records
 ``ratio_to_baseline`` (this / baseline). Without the variable the baseline cases are skipped.
 """
 

@@ -13,7 +13,7 @@ from typing import Any
 
 import pytest
 
-from hbench import scenarios
+from hbench import runtime, scenarios
 from hbench.simulate import Scenario
 
 
@@ -25,6 +25,13 @@ def pytest_collect_file(file_path: Path, parent: pytest.Collector) -> pytest.Mod
     ):
         return pytest.Module.from_parent(parent, path=file_path)
     return None
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _tuned_allocator() -> None:
+    """The benchmarks measure the library as the ``hbench`` command runs it: with glibc's
+    allocator tuned (:func:`hbench.runtime.tune_allocator`, opt-in)."""
+    runtime.tune_allocator()
 
 
 @pytest.fixture(scope="session")

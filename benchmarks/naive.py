@@ -1,11 +1,11 @@
-"""The naive baseline of issue 7: the same work written plainly, one run at a time.
+"""The naive baseline: the same work written plainly, one run at a time.
 
 Each run is simulated alone (a batch of one), every method identifies it alone, the inner
 signal of eq. (27) is solved by a dense least-squares solve, and the fitness is scored per run,
 all on the pure-numpy path (no compiled kernels: ``hbench.kernels.use("numpy")``).
 It computes the same estimates as the batched path (checked in ``bench_end_to_end.py``), so
 every throughput figure of hbench can be quoted as a ratio against it, measured in the same
-session. Not part of the package: a benchmark's yardstick only.
+run. Not part of the package: a benchmark's yardstick only.
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 /*
- * Compiled kernels of hbench (issue 7), loaded by hbench/kernels.py through ctypes.
+ * Compiled kernels of hbench, loaded by hbench/kernels.py through ctypes.
  *
  * Each function does, for one run after another, the very floating-point operations of the
  * numpy path it replaces, in the same order (sums run sequentially from the first product, as

@@ -34,8 +34,13 @@ class Parser(argparse.ArgumentParser):
         message : str
             argparse's message.
         """
-        msg = " ".join(message.split())
-        self.exit(2, f"{self.prog}: error: {msg} (see '{self.prog} --help')\n")
+        self.exit(2, usage_error_line(self.prog, message))
+
+
+def usage_error_line(prog: str, message: str) -> str:
+    """``PROG: error: MESSAGE (see 'PROG --help')``, one line (the message's whitespace joined)."""
+    msg = " ".join(message.split())
+    return f"{prog}: error: {msg} (see '{prog} --help')\n"
 
 
 def check_output(path: Path | str, option: str, folder: bool = False) -> Path:
@@ -226,13 +231,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_simulate)
 
     for module_name in COMMAND_MODULES:
-        try:
-            module = importlib.import_module(module_name)
-        except ModuleNotFoundError as exc:
-            if exc.name != module_name:
-                raise
-            continue  # that command is not built yet
-        module.add_parser(sub)
+        importlib.import_module(module_name).add_parser(sub)
     return parser
 
 
@@ -246,25 +245,25 @@ COMMAND_MODULES: tuple[str, ...] = (
 )
 
 
-def _command_parser(parser: argparse.ArgumentParser, name: str | None) -> argparse.ArgumentParser:
-    """The parser of command ``name`` (``parser`` itself when there is none)."""
-    for action in parser._actions:
-        if isinstance(action, argparse._SubParsersAction) and name in action.choices:
-            return action.choices[name]
-    return parser
-
-
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``hbench`` console script."""
+    """Entry point of the ``hbench`` console script.
+
+    A command runs with glibc's allocator tuned for the process
+    (:func:`hbench.runtime.tune_allocator`; ``HBENCH_TUNE_MALLOC=0`` leaves it alone).
+    """
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
     args, extra = parser.parse_known_args(argv)
-    if extra:  # name the command in the message, as its own errors do
-        command = _command_parser(parser, getattr(args, "command", None))
-        command.error(f"unrecognized arguments: {' '.join(extra)}")
+    if extra:  # name the command in the message, as its own errors do (its prog: "hbench CMD")
+        command = getattr(args, "command", None)
+        prog = f"{parser.prog} {command}" if command else parser.prog
+        parser.exit(2, usage_error_line(prog, f"unrecognized arguments: {' '.join(extra)}"))
     if not getattr(args, "func", None):
         parser.print_help()
         return 0
+    from hbench.runtime import tune_allocator
+
+    tune_allocator()  # the command's own process (and the workers it forks): hbench.runtime
     try:
         with one_line_warnings(args.command):
             return int(args.func(args) or 0)

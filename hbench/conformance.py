@@ -53,6 +53,15 @@ def paper_record(runs: int, seed: int, **top: Any) -> tuple[Record, Truth]:
 
     ``top`` overrides top-level keys of the scenario (``p=3``). Kept (the checks share it), with
     ``y``, ``x``, ``r`` and the truth's arrays read-only: a method must not modify its inputs.
+
+    Parameters
+    ----------
+    runs : int
+        Monte Carlo runs.
+    seed : int
+        Seed of the simulation.
+    **top : Any
+        Top-level scenario keys overridden (``p=3``).
     """
     return _paper_record(runs, seed, tuple(sorted(top.items())))
 
@@ -81,6 +90,11 @@ def method_factory(method: MethodLike) -> Callable[[], Identifier]:
 
     Its attribute ``name`` is the name the estimate must carry: the registered name for a name,
     else the class's ``name``.
+
+    Parameters
+    ----------
+    method : str, Identifier subclass or Identifier
+        A registered name, a class or an instance.
     """
     registered = method if isinstance(method, str) else None
     if isinstance(method, str):
@@ -114,7 +128,13 @@ def _run(make: Callable[[], Identifier], record: Record, truth: Truth, **opts: A
 
 
 def check_estimate_shapes(make: Callable[[], Identifier]) -> None:
-    """An :class:`Estimate` named after the method, one row per run, ``b1 = 1``."""
+    """An :class:`Estimate` named after the method, one row per run, ``b1 = 1``.
+
+    Parameters
+    ----------
+    make : callable
+        Returns a fresh instance of the method (:func:`method_factory`).
+    """
     record, truth = _data()
     method = make()
     est = identify(method, record, IdentifyOptions(), truth)
@@ -137,7 +157,13 @@ def check_estimate_shapes(make: Callable[[], Identifier]) -> None:
 
 def check_inner_signal_aligned_with_x(make: Callable[[], Identifier]) -> None:
     """``U[:, n]`` belongs with ``x[:, n]``: a one-sample shift would ruin the fit on this
-    noise-free record, where a correct method's U fits the truth to > 99 %."""
+    noise-free record, where a correct method's U fits the truth to > 99 %.
+
+    Parameters
+    ----------
+    make : callable
+        Returns a fresh instance of the method (:func:`method_factory`).
+    """
     record, truth = _data()
     est = _run(make, record, truth)
     F = fitness(est.U, truth.U, gain=truth.plant.gain)
@@ -164,7 +190,13 @@ class _Spy:
 
 
 def check_sees_only_what_it_declares(make: Callable[[], Identifier]) -> None:
-    """``x``, ``r`` and the truth reach the method only if it lists them in ``needs``."""
+    """``x``, ``r`` and the truth reach the method only if it lists them in ``needs``.
+
+    Parameters
+    ----------
+    make : callable
+        Returns a fresh instance of the method (:func:`method_factory`).
+    """
     record, truth = _data()
     spy = _Spy(make())
     identify(spy, record, IdentifyOptions(), truth)  # duck-typed: identify reads name, needs
@@ -179,7 +211,13 @@ def check_sees_only_what_it_declares(make: Callable[[], Identifier]) -> None:
 
 
 def check_deterministic(make: Callable[[], Identifier]) -> None:
-    """The same record twice (fresh instances) gives the same U, A and B, bit for bit."""
+    """The same record twice (fresh instances) gives the same U, A and B, bit for bit.
+
+    Parameters
+    ----------
+    make : callable
+        Returns a fresh instance of the method (:func:`method_factory`).
+    """
     record, truth = _data()
     # each call on its own copy of the record: a fresh cache, so nothing one call derived
     # (and memoised) can make the second agree with it
@@ -191,7 +229,13 @@ def check_deterministic(make: Callable[[], Identifier]) -> None:
 
 
 def check_unidentifiable_is_flagged_not_raised(make: Callable[[], Identifier]) -> None:
-    """p = 3 < n0_b + 1 = 5 (assumption A2 fails): every run flagged, with a reason."""
+    """p = 3 < n0_b + 1 = 5 (assumption A2 fails): every run flagged, with a reason.
+
+    Parameters
+    ----------
+    make : callable
+        Returns a fresh instance of the method (:func:`method_factory`).
+    """
     method = make()
     if "truth" in method.needs:
         raise Skipped("an oracle knows the structure: assumption A2 concerns blind estimation")
@@ -204,7 +248,13 @@ def check_unidentifiable_is_flagged_not_raised(make: Callable[[], Identifier]) -
 
 
 def check_single_run_and_batch_agree(make: Callable[[], Identifier]) -> None:
-    """Batching over runs changes nothing: run 1 alone equals run 1 of the batch (1e-10)."""
+    """Batching over runs changes nothing: run 1 alone equals run 1 of the batch (1e-10).
+
+    Parameters
+    ----------
+    make : callable
+        Returns a fresh instance of the method (:func:`method_factory`).
+    """
     record, truth = _data()
     batch = _run(make, record, truth)
     one = _run(make, record.select([1]), truth.select([1]))
@@ -232,6 +282,13 @@ def _label(method: MethodLike) -> str:
 
 def run_check(method: MethodLike, check: str) -> str:
     """Run one check of :data:`CHECKS` on ``method``.
+
+    Parameters
+    ----------
+    method : str, Identifier subclass or Identifier
+        A registered name, a class or an instance.
+    check : str
+        A name of :data:`CHECKS`.
 
     Returns
     -------
@@ -298,7 +355,13 @@ def check_method(method: MethodLike, checks: Sequence[str] | None = None) -> dic
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m hbench.conformance NAME [NAME ...]``: check registered methods (0: all pass)."""
+    """``python -m hbench.conformance NAME [NAME ...]``: check registered methods (0: all pass).
+
+    Parameters
+    ----------
+    argv : sequence of str, optional
+        Registered method names (default: ``sys.argv[1:]``).
+    """
     names = list(sys.argv[1:] if argv is None else argv)
     if not names or names[0] in ("-h", "--help"):
         print("usage: python -m hbench.conformance METHOD [METHOD ...]")

@@ -19,6 +19,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from hbench import polyphase as pp
+from hbench.docparams import parameters
 from hbench.errors import InputError, MethodError
 from hbench.records import Record, Truth
 
@@ -217,6 +218,20 @@ class SelectionRule:
                 raise InputError(f"selection {name} must be >= 0")
 
 
+#: numpydoc descriptions of the parameters shared here (:func:`hbench.docparams.parameters`)
+_PARAMS: dict[str, tuple[str, str]] = {
+    "p": ("int", "Fast-sampling ratio."),
+    "reg": ("QuietRegression", "The quiet-phase equations (13) of a group of runs."),
+    "idx": (
+        "ndarray of int",
+        "The group's runs in the record (unused: the fit reads ``reg`` only).",
+    ),
+    "y": ("ndarray", "Fast-rate outputs, ``(runs, N)``."),
+    "method": ("str", "The method's name (``Estimate.method``)."),
+    "options": ("IdentifyOptions", "What is known a priori."),
+}
+
+
 @dataclass(frozen=True)
 class Structure:
     """Per-run selected structure and the tables it was decided from."""
@@ -230,6 +245,11 @@ class Structure:
     na_values: np.ndarray
 
 
+@parameters(
+    _PARAMS,
+    p=("int", "Fast-sampling ratio of the record."),
+    options=("IdentifyOptions", "What the method knows a priori (``nb_max`` is n0_b)."),
+)
 def check_identifiable(p: int, options: IdentifyOptions) -> str:
     """Empty string, or why assumption A2 fails for this p."""
     if p < options.nb_max + 1:
@@ -240,6 +260,11 @@ def check_identifiable(p: int, options: IdentifyOptions) -> str:
     return ""
 
 
+@parameters(
+    _PARAMS,
+    K=("int", "Slow periods (controller samples) of the record."),
+    options=("IdentifyOptions", "The orders the regressions may take (:func:`largest_order`)."),
+)
 def check_length(K: int, p: int, options: IdentifyOptions) -> str:
     """Empty string, or why a record of K slow periods is too short for the quiet regressions."""
     L = largest_order(options)
@@ -306,15 +331,6 @@ def _blocks(q: np.ndarray) -> np.ndarray:
             reach = reach & nxt
             out = out | np.where(reach, np.roll(weights, -direction * step), 0)
     return np.where(q, out, 0)
-
-
-def _popcount(m: np.ndarray) -> np.ndarray:
-    out = np.zeros_like(m)
-    v = m.copy()
-    while np.any(v):
-        out += v & 1
-        v >>= 1
-    return out
 
 
 def _last_of_block(mask: np.ndarray, p: int) -> np.ndarray:
@@ -427,14 +443,17 @@ def _select_nb(
 DenominatorFit = Callable[[pp.QuietRegression, np.ndarray], tuple[np.ndarray, np.ndarray]]
 
 
+@parameters(_PARAMS)
 def bias_compensated_fit(reg: pp.QuietRegression, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Eqs. (14)-(15) as a :data:`DenominatorFit` (the LSM's estimate and selection)."""
     return pp.bias_compensated(reg)
 
 
+@parameters(_PARAMS)
 def ols_fit(reg: pp.QuietRegression, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Ordinary LS of eq. (13) as a :data:`DenominatorFit`; sigma^2 as half the residual mean
-    square (Bai & Fu's estimate and selection)."""
+    square (Bai & Fu's estimate and selection).
+    """
     theta, s2, _ = pp.ols(reg)
     return theta, s2 / 2.0
 
@@ -446,6 +465,7 @@ def _reads_the_regression_only(fit: Callable[..., Any]) -> bool:
     )
 
 
+@parameters(_PARAMS, options=("IdentifyOptions", "The given orders, or the ranges searched."))
 def largest_order(options: IdentifyOptions) -> int:
     """The largest denominator order a method may fit under ``options``."""
     return int(options.na) if options.na is not None else int(options.na_range[1])
@@ -466,11 +486,17 @@ def _kept(cache: dict[Any, Any] | None, key: Any, make: Callable[[], Any]) -> An
     return cache[key]
 
 
+@parameters(
+    _PARAMS,
+    L=("int", "Largest lag (regression order) the moments must cover."),
+    cache=("dict, optional", "A record's cache (``record.cache``); None computes afresh."),
+)
 def shared_moments(
     y: np.ndarray, p: int, L: int, cache: dict[str, Any] | None = None
 ) -> tuple[np.ndarray, pp.LagMoments]:
     """``(Delta y, its quiet-phase moments up to lag L)``, kept in ``cache`` (a record's) so that
-    every method run on one record computes them once."""
+    every method run on one record computes them once.
+    """
 
     def make() -> tuple[np.ndarray, pp.LagMoments]:
         dy = pp.delta(y)
@@ -492,6 +518,17 @@ def _mean_square(dy: np.ndarray, cache: dict[str, Any] | None = None) -> np.ndar
     return _kept(cache, "mean-square-delta-y", make)
 
 
+@parameters(
+    _PARAMS,
+    options=("IdentifyOptions", "Orders and delay given a priori (those given are not selected)."),
+    fit=("DenominatorFit", "The denominator estimate whose criterion is tabulated."),
+    rule=("SelectionRule, optional", "How the tables are read (default: ``SelectionRule()``)."),
+    pooled=(
+        "bool, optional",
+        "Re-estimate A from every quiet phase ``nb + 1 .. p`` for step (iii).",
+    ),
+    cache=("dict, optional", "A record's cache, for moments shared between methods."),
+)
 def select_structure(
     y: np.ndarray,
     p: int,
@@ -600,6 +637,9 @@ def _runs(a: np.ndarray, idx: np.ndarray) -> np.ndarray:
     return out
 
 
+@parameters(
+    _PARAMS, keys=("ndarray", "Per-run keys of equal length (e.g. ``na``, ``tau``, ``nb``).")
+)
 def groups(*keys: np.ndarray) -> list[tuple[tuple[int, ...], np.ndarray]]:
     """Runs grouped by equal keys: ``[((k1, k2, ..), indices), ...]``."""
     stacked = np.stack(keys, axis=1)
@@ -609,11 +649,22 @@ def groups(*keys: np.ndarray) -> list[tuple[tuple[int, ...], np.ndarray]]:
     ]
 
 
+@parameters(
+    _PARAMS,
+    b=("ndarray", "Numerator coefficients, ``(runs, nb)``."),
+    tol=("float, optional", "``|B(1)|`` at or below this counts as zero."),
+)
 def check_a4(b: np.ndarray, tol: float = 1e-6) -> np.ndarray:
     """True where ``B(1) = sum b`` is (numerically) zero: assumption A4 fails."""
     return np.abs(b.sum(axis=1)) <= tol * np.abs(b).sum(axis=1)
 
 
+@parameters(
+    _PARAMS,
+    record=("Record", "The record the estimate is for (its runs and slow samples)."),
+    reason=("str", "Why there is no estimate, kept for every run."),
+    info=("Any", "Entries of ``Estimate.info``."),
+)
 def empty_estimate(method: str, record: Record, reason: str, **info: Any) -> Estimate:
     """An all-nan estimate flagged not identifiable (never an exception that stops a sweep)."""
     R, K = record.runs, record.n_slow
@@ -632,11 +683,22 @@ def empty_estimate(method: str, record: Record, reason: str, **info: Any) -> Est
     )
 
 
+@parameters(
+    _PARAMS,
+    parts=("sequence of ndarray", "2-D arrays with equal row counts."),
+    width=("int", "Columns of the result (at least each part's)."),
+)
 def pad(parts: Sequence[np.ndarray], width: int) -> np.ndarray:
     """Zero-pad 2-D arrays on the right to ``width`` columns."""
     return np.stack([np.pad(p, (0, width - p.size)) for p in parts])
 
 
+@parameters(
+    _PARAMS,
+    method=("Identifier", "The method instance."),
+    record=("Record", "The record; ``x`` and ``r`` reach the method only if it needs them."),
+    truth=("Truth, optional", "The simulation's truth; passed only to a method that needs it."),
+)
 def identify(
     method: Identifier, record: Record, options: IdentifyOptions, truth: Truth | None = None
 ) -> Estimate:
@@ -654,6 +716,12 @@ def identify(
     return est
 
 
+@parameters(
+    _PARAMS,
+    est=("Any", "What the method returned."),
+    record=("Record", "The record it was given."),
+    name=("str", "The method's name, for the message."),
+)
 def check_estimate(est: Any, record: Record, name: str) -> None:
     """Raise :class:`~hbench.errors.MethodError` unless ``est`` is an :class:`Estimate` of the
     shapes :class:`Estimate` documents for ``record`` (``R`` runs, ``K`` slow samples).
@@ -723,6 +791,7 @@ NO_ESTIMATE = "the method returned no finite inner-signal estimate U for this ru
 NON_FINITE = "non-finite parameters (an infinite a or b)"
 
 
+@parameters(_PARAMS, est=("Estimate", "A checked estimate (:func:`check_estimate`)."))
 def run_status(est: Estimate) -> tuple[np.ndarray, list[str]]:
     """Each run's status and reason: ``ok`` (with the method's note, if any), ``not-identifiable``
     (the method's flag and its reason), or ``failed`` where the method called the run
@@ -731,7 +800,8 @@ def run_status(est: Estimate) -> tuple[np.ndarray, list[str]]:
     an infinite parameter (reason :data:`NON_FINITE`: an overflow is never an estimate).
 
     A run without ``U`` whose method says why (bai-fu's refused unstable inverse) stays ``ok``:
-    its parameters, orders and delay are estimates the bias and structure tables count."""
+    its parameters, orders and delay are estimates the bias and structure tables count.
+    """
     ok = np.asarray(est.identifiable, bool)
     reasons = [str(r) for r in est.reason]
     silent = np.array([not r for r in reasons], bool)
@@ -784,6 +854,15 @@ REFUSALS = {
 }
 
 
+@parameters(
+    _PARAMS,
+    y=("ndarray", "The group's fast-rate outputs, ``(runs, N)``."),
+    w=("ndarray", "``A(q) y``, ``(runs, N)``."),
+    a=("ndarray", "Denominators with the leading 1, ``(runs, na + 1)``."),
+    b=("ndarray", "Numerators with ``b1 = 1``, ``(runs, nb)``."),
+    tau=("int", "Delay within a period."),
+    t_min=("int", "First fast sample where ``w`` is defined."),
+)
 def inner_ls(
     y: np.ndarray, w: np.ndarray, a: np.ndarray, b: np.ndarray, p: int, tau: int, t_min: int
 ) -> tuple[np.ndarray, int, str]:
@@ -793,6 +872,75 @@ def inner_ls(
     return pp.inner_signal_ls(sys, h0, h1), sys.n0 - 1, "ls27"
 
 
+#: ``inverse`` choices of :func:`inverse_inner`.
+INVERSES = ("auto", "direct", "bezout", "refuse")
+
+
+def inverse_inner(choice: str) -> InnerSignal:
+    """An ``inner`` step for :func:`blind_fit`: the direct inverse or the Bezout combiner.
+
+    The direct inverse is ``A(q)/B(q) y`` down-sampled by p (Table 5's F_INV); the Bezout
+    combiner is the minimum-norm degree-0 combination of the polyphase channels, for a B that
+    is not minimum phase.
+
+    Parameters
+    ----------
+    choice : str
+        One of :data:`INVERSES`. ``auto`` uses the direct inverse when every zero of B is inside
+        the unit circle and the Bezout combiner otherwise; ``direct`` and ``bezout`` use one of
+        them for every run; ``refuse`` marks non-minimum-phase runs with nan (no estimate, the
+        reason in :data:`REFUSALS`).
+
+    Returns
+    -------
+    InnerSignal
+        ``inner(y, w, a, b, p, tau, t_min) -> (U~, n_first, label)``.
+    """
+    if choice not in INVERSES:
+        raise InputError(f"inverse must be one of {', '.join(INVERSES)}, got {choice!r}")
+
+    def inner(y, w, a, b, p, tau, t_min):
+        n0, periods = pp.simo_periods(w.shape[1], p, tau, t_min)
+        n_first = n0 - 1
+        M = periods + 1
+        nmp = pp.max_root_modulus(b) >= 1.0
+        use_direct = (
+            (~nmp) if choice in ("auto", "refuse") else np.full(b.shape[0], choice == "direct")
+        )
+        if use_direct.all():  # every run (the usual case): no copies of the batch
+            return pp.inner_signal_direct(y, a, b, p, tau, n_first, M), n_first, "direct"
+        # from here on some runs are not minimum phase (or the Bezout combiner was chosen)
+        U = np.full((b.shape[0], M), np.nan)
+        if use_direct.any():
+            U[use_direct] = pp.inner_signal_direct(
+                y[use_direct], a[use_direct], b[use_direct], p, tau, n_first, M
+            )
+        if choice == "refuse":
+            return U, n_first, "refused-nmp"  # runs without an estimate get its reason
+        rest = ~use_direct
+        h0, h1 = pp.simo_channels(b[rest], p)
+        sys_rest = pp.simo_system(w[rest], p, tau, t_min)
+        U[rest] = pp.inner_signal_bezout(sys_rest, h0, h1)[:, :M]
+        return U, n_first, "direct+bezout" if use_direct.any() else "bezout"
+
+    return inner
+
+
+@parameters(
+    _PARAMS,
+    record=("Record", "The record (``y`` is read; ``record.cache`` holds shared tables)."),
+    denominator=("DenominatorFit", "``(reg, idx) -> (theta, sigma2)``: A and the noise variance."),
+    numerator=("NumeratorFit", "``(dw, tau, nb, sigma2, idx) -> b`` with ``b1 = 1``."),
+    inner=("InnerSignal, optional", "The inner-signal step (default: eq. (27), :func:`inner_ls`)."),
+    pooled=("bool, optional", "The denominator from all quiet phases instead of phase p alone."),
+    rule=("SelectionRule, optional", "How the selection tables are read."),
+    info=("dict, optional", "Entries of ``Estimate.info`` (the method's options)."),
+    selector=("DenominatorFit, optional", "The denominator estimate of the structure selection."),
+    refine=(
+        "callable, optional",
+        "``(reg, idx, tau, nb) -> (theta, sigma2)`` for the final estimate.",
+    ),
+)
 def blind_fit(
     method: str,
     record: Record,

@@ -91,15 +91,3 @@ def fitnesses(
             num = np.sqrt(np.sum(np.where(m, us - u, 0.0) ** 2, axis=1))
             out[scaling] = np.where(n > 1, 100.0 * (1.0 - num / den), np.nan)
     return out
-
-
-def parameter_errors(
-    params: dict[str, np.ndarray], truth: dict[str, float]
-) -> dict[str, np.ndarray]:
-    """``estimate - truth`` per parameter the truth has (``nan`` where the estimate lacks it)."""
-    R = len(next(iter(params.values()))) if params else 0
-    out = {}
-    for k, v in truth.items():
-        est = params.get(k, np.full(R, np.nan))
-        out[k] = est - v
-    return out

@@ -22,14 +22,43 @@ from scipy import signal
 from scipy.linalg import lapack
 
 from hbench import kernels
+from hbench.docparams import parameters
 from hbench.ordered import cholesky_inverse, ordered_products
 
 _RCOND = 1e-12
 
 
+#: numpydoc descriptions of the parameters shared here (:func:`hbench.docparams.parameters`)
+_PARAMS: dict[str, tuple[str, str]] = {
+    "N": ("int", "Fast samples of the record."),
+    "p": ("int", "Fast-sampling ratio."),
+    "shift": ("int", "Shift of the phases (the delay tau within a period)."),
+    "na": ("int", "Denominator order."),
+    "reg": ("QuietRegression", "The quiet-phase equations (13)."),
+    "r": ("ndarray", "Reference at the slow rate, ``(runs, K)``."),
+    "m": ("int", "Number of instruments."),
+    "lag0": ("int, optional", "Lag of the first instrument (the paper's 1)."),
+    "a": ("ndarray", "``(runs, na + 1)`` with the leading 1."),
+    "y": ("ndarray", "Fast-rate outputs, ``(runs, N)``."),
+    "dw": ("ndarray", "``Delta w`` with ``w = A(q) y``, ``(runs, N)``."),
+    "t_min": ("int", "First fast sample that is defined."),
+    "nb": ("int", "Numerator order."),
+    "b": ("ndarray", "Numerators ``(runs, nb)``."),
+    "sys": ("SimoSystem", "The SIMO blocks of (23) (:func:`simo_system`)."),
+    "h0": ("ndarray", "``h_i(0)``, ``(runs, p)`` (:func:`simo_channels`)."),
+    "h1": ("ndarray", "``h_i(1)``, ``(runs, p)``."),
+}
+
+
 # --- indexing ----------------------------------------------------------------------------------
 
 
+@parameters(
+    _PARAMS,
+    l=("int", "Phase, 1 .. p."),
+    t_min=("int", "First admissible fast sample."),
+    k_min=("int, optional", "First admissible slow index."),
+)
 def phase_times(N: int, p: int, l: int, shift: int, t_min: int, k_min: int = 0) -> np.ndarray:
     """Slow indices ``k`` whose sample ``t = k p + l + shift`` satisfies ``t_min <= t < N``."""
     k0 = max(k_min, -(-(t_min - l - shift) // p))
@@ -37,6 +66,7 @@ def phase_times(N: int, p: int, l: int, shift: int, t_min: int, k_min: int = 0) 
     return np.arange(k0, k1 + 1) if k1 >= k0 else np.zeros(0, dtype=int)
 
 
+@parameters(_PARAMS, z=("ndarray", "Signals, time on the last axis."))
 def delta(z: np.ndarray) -> np.ndarray:
     """``Delta z(t) = z(t) - z(t-1)`` with ``Delta z(0) = nan`` (same length, time last)."""
     out = np.empty_like(z, dtype=float)
@@ -45,11 +75,17 @@ def delta(z: np.ndarray) -> np.ndarray:
     return out
 
 
+@parameters(
+    _PARAMS,
+    z=("ndarray", "Signals ``(runs, N)``."),
+    block=("int, optional", "Samples scanned at a time."),
+)
 def first_valid(z: np.ndarray, block: int = 64) -> int:
     """Index of the first sample that is defined (not nan) in every run of ``z``.
 
     Scans ``block`` samples at a time from the start (a record's undefined samples are its
-    first few), so a long record is not read to the end."""
+    first few), so a long record is not read to the end.
+    """
     N = z.shape[-1]
     for t0 in range(0, N, block):
         bad = np.isnan(z[..., t0 : t0 + block]).reshape(-1, min(block, N - t0)).any(axis=0)
@@ -249,6 +285,16 @@ class QuietRegression:
         return self._cache[key]
 
 
+@parameters(
+    _PARAMS,
+    dy=("ndarray", "``delta(y)``, ``(runs, N)``."),
+    phases=("sequence of int", "The phases ``l`` (1-based) whose equations are stacked."),
+    moments=("LagMoments, optional", "Moments of the same ``dy`` (rows and Gram shared)."),
+    fast=(
+        "bool, optional",
+        "Residual mean squares from the moments (see :class:`QuietRegression`).",
+    ),
+)
 def quiet_regression(
     dy: np.ndarray,
     p: int,
@@ -286,6 +332,7 @@ def _pinv_sym(Rm: np.ndarray) -> np.ndarray:
     return X
 
 
+@parameters(_PARAMS)
 def ols(reg: QuietRegression) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Ordinary LS of (13): ``(theta, residual mean square, g11)``; biased under noise."""
     theta, ms = reg.least_squares()
@@ -296,6 +343,12 @@ def ols(reg: QuietRegression) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 NO_ROOT = ("clip", "real", "modulus", "zero")
 
 
+@parameters(
+    _PARAMS,
+    s2=("ndarray", "OLS residual mean square per run."),
+    g11=("ndarray", "``(R^-1)_{11}`` per run."),
+    no_root=("str, optional", "``clip``, ``real``, ``modulus`` or ``zero`` (above)."),
+)
 def noise_variance(s2: np.ndarray, g11: np.ndarray, no_root: str = "clip") -> np.ndarray:
     """Eq. (15), corrected: sigma^2 from the OLS residual mean square ``s2`` and ``g11``.
 
@@ -330,6 +383,9 @@ def noise_variance(s2: np.ndarray, g11: np.ndarray, no_root: str = "clip") -> np
     return np.where(none, other, x)
 
 
+@parameters(
+    _PARAMS, no_root=("str, optional", "Eq. (15) without a real root (:func:`noise_variance`).")
+)
 def bias_compensated(reg: QuietRegression, no_root: str = "clip") -> tuple[np.ndarray, np.ndarray]:
     """Eqs. (14)-(15): ``theta = R^-1 (f - [sigma^2, 0, ..., 0])`` and ``sigma^2``.
 
@@ -344,6 +400,7 @@ def bias_compensated(reg: QuietRegression, no_root: str = "clip") -> tuple[np.nd
     return theta, sigma2
 
 
+@parameters(_PARAMS, k=("ndarray of int", "Slow indices of the equations."))
 def instruments(
     r: np.ndarray, k: np.ndarray, m: int, lag0: int = 1
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -358,6 +415,7 @@ def instruments(
 IV_BLOCK = 16
 
 
+@parameters(_PARAMS)
 def iv_moments(reg: QuietRegression, r: np.ndarray, m: int, lag0: int = 1) -> np.ndarray:
     """``(1/n) sum zeta [Delta y, phi^T]`` over the rows with every instrument defined.
 
@@ -415,21 +473,29 @@ def _instrument_products(ZT: np.ndarray, Y: np.ndarray) -> np.ndarray:
     return np.matmul(np.ascontiguousarray(ZT), Y)
 
 
+@parameters(_PARAMS)
 def iv(reg: QuietRegression, r: np.ndarray, m: int, lag0: int = 1) -> np.ndarray:
     """Eq. (20): extended IV ``theta = [(1/n) sum zeta phi^T]^+ (1/n) sum zeta Delta y``."""
     G = iv_moments(reg, r, m, lag0)
     return np.einsum("rim,rm->ri", np.linalg.pinv(G[:, :, 1:], rcond=_RCOND), G[:, :, 0])
 
 
+@parameters(
+    _PARAMS, ms=("ndarray", "Residual mean square per run."), K=("int", "Rows of the regression.")
+)
 def aic(ms: np.ndarray, na: int, K: int) -> np.ndarray:
     """Eq. (19): ``V(na) = (1 + 2 na / K) (1/K) sum (Delta y - phi^T theta)^2`` from the residual
-    mean square ``ms`` over ``K`` rows."""
+    mean square ``ms`` over ``K`` rows.
+    """
     return (1.0 + 2.0 * na / K) * ms
 
 
 # --- numerator (eqs. 17, 18, 21) ---------------------------------------------------------------
 
 
+@parameters(
+    _PARAMS, a=("ndarray", "``(runs, N)``."), t=("ndarray of int", "Sample indices, any shape.")
+)
 def take_periods(a: np.ndarray, t: np.ndarray) -> np.ndarray:
     """``a[:, t]`` for an index array ``t`` of any shape, in C order.
 
@@ -440,10 +506,12 @@ def take_periods(a: np.ndarray, t: np.ndarray) -> np.ndarray:
     return np.take(a, t, axis=1)
 
 
+@parameters(_PARAMS)
 def filtered_output(y: np.ndarray, a: np.ndarray) -> np.ndarray:
     """``w(t) = A(q) y(t)`` per run (``a`` of shape ``(runs, na + 1)``); ``nan`` for ``t < na``.
 
-    Compiled when :mod:`hbench.kernels` is built (the same bits as the numpy lines below)."""
+    Compiled when :mod:`hbench.kernels` is built (the same bits as the numpy lines below).
+    """
     compiled = kernels.filtered_output(y, a)
     if compiled is not None:
         return compiled
@@ -457,9 +525,11 @@ def filtered_output(y: np.ndarray, a: np.ndarray) -> np.ndarray:
     return w
 
 
+@parameters(_PARAMS)
 def filtered_output_and_delta(y: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(w, delta(w))`` with ``w =`` :func:`filtered_output` ``(y, a)``: compiled in one pass
-    per run when :mod:`hbench.kernels` is built (the same bits as the two calls)."""
+    per run when :mod:`hbench.kernels` is built (the same bits as the two calls).
+    """
     compiled = kernels.filtered_output_and_delta(y, a)
     if compiled is not None:
         return compiled
@@ -467,6 +537,7 @@ def filtered_output_and_delta(y: np.ndarray, a: np.ndarray) -> tuple[np.ndarray,
     return w, delta(w)
 
 
+@parameters(_PARAMS)
 def common_periods(dw: np.ndarray, p: int, shift: int, t_min: int, nb: int) -> np.ndarray:
     """Slow indices k whose phases 1 .. nb all have a defined sample (the numerator's rows)."""
     k = phase_times(dw.shape[1], p, 1, shift, t_min)
@@ -474,6 +545,12 @@ def common_periods(dw: np.ndarray, p: int, shift: int, t_min: int, nb: int) -> n
     return np.intersect1d(k, k_last)
 
 
+@parameters(
+    _PARAMS,
+    a=("ndarray", "``(runs, N)``."),
+    k=("ndarray of int", "Slow indices."),
+    width=("int", "Phases taken per period."),
+)
 def period_block(a: np.ndarray, p: int, k: np.ndarray, shift: int, width: int) -> np.ndarray:
     """``a[:, k p + shift + l]`` for ``l = 1 .. width``, shape ``(runs, len(k), width)``.
 
@@ -494,6 +571,7 @@ def period_block(a: np.ndarray, p: int, k: np.ndarray, shift: int, width: int) -
     return take_periods(a, t)
 
 
+@parameters(_PARAMS)
 def phase_variances(dw: np.ndarray, p: int, shift: int, t_min: int) -> np.ndarray:
     """``Var{Delta w^(l)}``, l = 1..p (the paper's Table 2): mean square over common periods."""
     k = common_periods(dw, p, shift, t_min, p)
@@ -502,11 +580,13 @@ def phase_variances(dw: np.ndarray, p: int, shift: int, t_min: int) -> np.ndarra
     return compiled if compiled is not None else np.mean(np.square(block), axis=1)
 
 
+@parameters(_PARAMS)
 def filtered_phase_variances(
     y: np.ndarray, a: np.ndarray, p: int, shift: int, t_min: int
 ) -> np.ndarray:
     """:func:`phase_variances` of ``delta(filtered_output(y, a))``; compiled, the kernel forms
-    neither ``w`` nor ``Delta w`` (the same numbers: the same operations in the same order)."""
+    neither ``w`` nor ``Delta w`` (the same numbers: the same operations in the same order).
+    """
     k = common_periods(y, p, shift, t_min, p)
     if k.size and int(k[-1] - k[0]) == k.size - 1:
         compiled = kernels.filtered_phase_variances(y, a, p, int(k[0]) * p + shift + 1, k.size)
@@ -515,6 +595,7 @@ def filtered_phase_variances(
     return phase_variances(delta(filtered_output(y, a)), p, shift, t_min)
 
 
+@parameters(_PARAMS, sigma2=("ndarray", "Noise variance per run (eq. 15)."))
 def b_lsm(
     dw: np.ndarray, p: int, shift: int, nb: int, sigma2: np.ndarray, t_min: int
 ) -> np.ndarray:
@@ -536,11 +617,13 @@ def b_lsm(
     return b
 
 
+@parameters(_PARAMS)
 def b_ols(dw: np.ndarray, p: int, shift: int, nb: int, t_min: int) -> np.ndarray:
     """LS ratio of active phases, ``b_l = sum dw1 dwl / sum dw1^2`` (the noise-free design)."""
     return b_lsm(dw, p, shift, nb, np.zeros(dw.shape[0]), t_min)
 
 
+@parameters(_PARAMS)
 def b_iv(
     dw: np.ndarray, r: np.ndarray, p: int, shift: int, nb: int, m: int, t_min: int, lag0: int = 1
 ) -> np.ndarray:
@@ -566,6 +649,7 @@ def b_iv(
     return b
 
 
+@parameters(_PARAMS, b=("ndarray", "Numerators ``(runs, nb)`` with ``b1 = 1``."))
 def v_eiv(dw: np.ndarray, p: int, shift: int, b: np.ndarray, t_min: int) -> np.ndarray:
     """The generalised prediction error of the static EIV systems (17), Section 6 step (iv):
     ``V_EIV(l) = (1/K) sum (Delta w(kp + l) - b_l Delta w(kp + 1))^2 / (b_l^2 + 1)`` for
@@ -589,6 +673,7 @@ def v_eiv(dw: np.ndarray, p: int, shift: int, b: np.ndarray, t_min: int) -> np.n
 # --- inner signal (eqs. 23-27) -----------------------------------------------------------------
 
 
+@parameters(_PARAMS)
 def simo_channels(b: np.ndarray, p: int) -> tuple[np.ndarray, np.ndarray]:
     """Eq. (25): ``h_i(0) = b_1 + .. + b_i`` and ``h_i(1) = b_{i+1} + .. + b_nb``, i = 1..p."""
     R, nb = b.shape
@@ -599,6 +684,13 @@ def simo_channels(b: np.ndarray, p: int) -> tuple[np.ndarray, np.ndarray]:
     return h0, h1
 
 
+@parameters(
+    _PARAMS,
+    lower=("ndarray", "Sub-diagonal, ``(R, M-1)``."),
+    diag=("ndarray", "Diagonal, ``(R, M)``."),
+    upper=("ndarray", "Super-diagonal, ``(R, M-1)``."),
+    rhs=("ndarray", "Right-hand sides, ``(R, M)``."),
+)
 def solve_tridiagonal(
     lower: np.ndarray, diag: np.ndarray, upper: np.ndarray, rhs: np.ndarray
 ) -> np.ndarray:
@@ -712,17 +804,21 @@ class SimoSystem:
         return self._W
 
 
+@parameters(_PARAMS)
 def simo_periods(N: int, p: int, shift: int, t_min: int) -> tuple[int, int]:
     """``(n0, M)``: the first period and the number of periods of :func:`simo_system` for a
-    record of ``N`` fast samples (without arranging the blocks)."""
+    record of ``N`` fast samples (without arranging the blocks).
+    """
     n0 = max(1, -(-(t_min - 1 - shift) // p))
     n1 = (N - 1 - 1 - shift) // p  # last period with at least its first sample
     return int(n0), max(n1 - n0 + 1, 0)
 
 
+@parameters(_PARAMS, w=("ndarray", "``A(q) y``, ``(runs, N)``."))
 def simo_system(w: np.ndarray, p: int, shift: int, t_min: int) -> SimoSystem:
     """The SIMO blocks of (23) from ``w``; periods with no valid sample are dropped. The blocks
-    are laid out when first used (:attr:`SimoSystem.W`)."""
+    are laid out when first used (:attr:`SimoSystem.W`).
+    """
     N = w.shape[1]
     n0, M = simo_periods(N, p, shift, t_min)
     n = np.arange(n0, n0 + M)
@@ -751,6 +847,7 @@ def _validity_patterns(valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return patterns.T, which.ravel()
 
 
+@parameters(_PARAMS)
 def inner_signal_ls(sys: SimoSystem, h0: np.ndarray, h1: np.ndarray) -> np.ndarray:
     """Eq. (27): ``U = (H^T H)^-1 H^T W`` through its tridiagonal normal equations, O(K).
 
@@ -814,6 +911,7 @@ def _ordered_channels(W: np.ndarray, h: np.ndarray) -> np.ndarray:
     return out
 
 
+@parameters(_PARAMS)
 def inner_signal_dense(sys: SimoSystem, h0: np.ndarray, h1: np.ndarray) -> np.ndarray:
     """Eq. (27) by a dense least-squares solve of ``H U = W`` (reference and benchmark baseline)."""
     R = h0.shape[0]
@@ -828,6 +926,7 @@ def inner_signal_dense(sys: SimoSystem, h0: np.ndarray, h1: np.ndarray) -> np.nd
     return out
 
 
+@parameters(_PARAMS)
 def bezout_combiner(h0: np.ndarray, h1: np.ndarray) -> np.ndarray:
     """Minimum-norm degree-0 multichannel inverse: ``g`` with ``sum g_i h_i(0) = 1``,
     ``sum g_i h_i(1) = 0`` (Bezout identity over the polyphase channels; exists under A4).
@@ -841,6 +940,7 @@ def bezout_combiner(h0: np.ndarray, h1: np.ndarray) -> np.ndarray:
     return np.einsum("rai,ra->ri", Hm, lam)
 
 
+@parameters(_PARAMS)
 def inner_signal_bezout(sys: SimoSystem, h0: np.ndarray, h1: np.ndarray) -> np.ndarray:
     """``U~(n) = sum_i g_i w_i(n)`` for periods whose p samples all exist; nan elsewhere.
 
@@ -853,6 +953,9 @@ def inner_signal_bezout(sys: SimoSystem, h0: np.ndarray, h1: np.ndarray) -> np.n
     return np.concatenate([np.full((U.shape[0], 1), np.nan), U], axis=1)
 
 
+@parameters(
+    _PARAMS, n_first=("int", "First slow index returned."), M=("int", "Slow samples returned.")
+)
 def inner_signal_direct(
     y: np.ndarray, a: np.ndarray, b: np.ndarray, p: int, shift: int, n_first: int, M: int
 ) -> np.ndarray:
@@ -878,6 +981,7 @@ def inner_signal_direct(
     return np.where(ok, vals, out)
 
 
+@parameters(_PARAMS, c=("ndarray", "Polynomial coefficients per row, highest power first."))
 def max_root_modulus(c: np.ndarray) -> np.ndarray:
     """Largest ``|root|`` of each row's polynomial ``c[r, 0] z^n + .. + c[r, n]`` (0 if n = 0).
 
@@ -894,6 +998,12 @@ def max_root_modulus(c: np.ndarray) -> np.ndarray:
     return np.max(np.abs(np.linalg.eigvals(comp)), axis=1)
 
 
+@parameters(
+    _PARAMS,
+    num=("ndarray", "Numerators per run, ``(runs, nn)``."),
+    den=("ndarray", "Denominators per run, ``(runs, nd)``."),
+    x=("ndarray", "Inputs per run, ``(runs, N)``."),
+)
 def batched_lfilter(num: np.ndarray, den: np.ndarray, x: np.ndarray) -> np.ndarray:
     """``scipy.signal.lfilter(num[r], den[r], x[r])`` for every run r, from rest.
 
@@ -911,6 +1021,13 @@ def batched_lfilter(num: np.ndarray, den: np.ndarray, x: np.ndarray) -> np.ndarr
     return out
 
 
+@parameters(
+    _PARAMS,
+    U_tilde=("ndarray", "``U~(n_first ..)``, ``(runs, M)``."),
+    n_first=("int", "Slow index of ``U_tilde[:, 0]``."),
+    delay_multiple=("int", "m of the delay ``tau + m p`` (assumption A3)."),
+    K=("int", "Slow samples of the record."),
+)
 def align(U_tilde: np.ndarray, n_first: int, delay_multiple: int, K: int) -> np.ndarray:
     """Place ``U~(n_first ..)`` on the record's slow grid: ``U(n) = U~(n + m)``; nan elsewhere.
 

@@ -1,4 +1,4 @@
-"""The report's "Beyond the paper" section: hbench's own methods (GitHub issue 8) and their claims.
+"""The report's "Beyond the paper" section: hbench's own methods and their claims.
 
 The section is shown when a method registered by the ``hbench_extensions`` plugin package ran
 (membership from the module of the registered class, :func:`is_extension`). Its subsections
@@ -396,8 +396,8 @@ def plan(rows: pd.DataFrame, out: Path, series_label: Label) -> BeyondSection | 
     section = BeyondSection()
     section.blocks += [
         '<section id="beyond"><h2>Beyond the paper</h2>',
-        "<p>hbench's own methods (plugin package <code>hbench_extensions</code>, GitHub issue "
-        f"8) in these rows: {_esc(', '.join(ext))}.</p>",
+        "<p>hbench's own methods (plugin package <code>hbench_extensions</code>) in these rows: "
+        f"{_esc(', '.join(ext))}.</p>",
     ]
     fitness, bias = results.aggregate(rows, level=True)
     titles = {

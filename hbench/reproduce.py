@@ -46,33 +46,8 @@ much (mean |z| per table before and after, and the ratio of our spreads to the p
 alternatives under which it is within (a cell near 2 is moved within by many of them by chance;
 a cell far beyond by one, and only one, names its likely cause).
 
-Findings (100 runs, seed 20070601; ``investigation.md`` has the numbers):
-
-* The SNR gap (ours ~1.6x lower) is the reference's spectrum. The noise matches (Table 2's quiet
-  phases; the part of ||y0|| fed back from the noise matches the paper's SNR column), the
-  reference-driven part of y0 is ~1.6x smaller. An RBS of band [0, 0.3] x Nyquist (or a PRBS held
-  3 periods) brings the SNR column, F0_LSM, F0_INV and Table 1's na = 1 row onto the paper's;
-  a reference of the same power but the stated spectrum (values +-1.6) does not (F0 overshoots,
-  Table 1 triples): spectrum, not power. These bands are fits to the SNR column; the stated
-  "[0, 0.5]" in MATLAB idinput's convention is the scenario's default.
-* The 2-4x larger parameter spread is the denominator taken from phase p alone: pooling the
-  quiet phases (step iii) brings Table 4's spreads to 1.1x the paper's (1.0x with the matched
-  reference; 2.1-2.3x unpooled), Table 5's to 1.4x (1.1x).
-* F_INV is the LSM's estimates in the direct inverse; bai-fu (OLS) is far below the paper.
-* Table 1's tau = 4 column (an active phase, where eq. 15 has no real root) is the complex
-  roots' modulus ``sqrt(s2 / g11)`` (``eq15-modulus``; complex arithmetic with ``|e|^2`` gives
-  the same V = 2 s2): the four LSM cells na >= 2 move from z = +6..+9 to -0.2..-0.1 and no other
-  cell moves. The default keeps ``clip`` (x = s2): the evidence is this one column.
-* Table 2's l = 1, 2 read exchanged (``table2-swapped``) differ from ours by one factor (~0.67:
-  the paper's Var(Delta U) is smaller). RBS band [0, 0.25] with values +-0.9 matches Table 2 read
-  so (z -0.3, -0.4) and the SNR column, but puts F0 ~10 SE below the paper (the backlash passes
-  less of a smaller reference): no tested reference fits Table 2, the SNR column and F0 together
-  (the band x amplitude grid: ``docs/experiments/table2-reference.md``).
-* The paper's step (iv) alone (``paper-step-iv``: b_l by V_EIV, A from the LSM) moves the LSM's b2
-  at sigma^2 = 5e-3, 1e-2 from z = +5.4, +8.0 to -2.5, -3.5 (beyond on the other side); step (ii)
-  (A by the integrated AIC) pulls a1, a2 off the paper's LSM rows at every level (z ~ +-4..8):
-  the paper's LSM rows are not the selected estimates; its b2 may be.
-* Remaining without a cause: F_LSM and F_INV at sigma^2 = 1e-2 (z -5.7, -5.1).
+What ``--investigate`` finds under the defaults (100 runs, seed 20070601), and the command that
+produces it: ``docs/experiments/reproduce-investigation.md``.
 """
 
 from __future__ import annotations
@@ -101,7 +76,7 @@ DEFAULT_RUNS = 100
 NOISE_FREE_RUNS = 10
 #: Realisations behind the spread of the Table 1 and 2 values.
 TABLE12_RUNS = 20
-#: Every method the reproduction runs (``wang-lsm-inv`` is defined in this module).
+#: Every method the reproduction runs (``wang-lsm-inv``: ``wang-lsm`` with ``inverse='auto'``).
 ALL_METHODS: tuple[str, ...] = (
     "wang-lsm",
     "wang-iv",
@@ -444,49 +419,6 @@ def level_seed(seed: int, sigma2: float) -> Any:
     return cell_seed(seed, {"experiment": "paper_section6", "sigma2": float(sigma2)})
 
 
-@functools.lru_cache(maxsize=1)
-def _lsm_inverse_class() -> type:
-    """``wang-lsm-inv``: Wang's LSM estimates in the direct inverse (Table 5's F_INV).
-
-    Built on first use so that importing this module stays light (start-up time).
-    """
-    from hbench_baifu import inverse_inner
-
-    from hbench import polyphase as pp
-    from hbench.identifiers import Identifier, bias_compensated_fit, blind_fit
-
-    class WangLSMDirectInverse(Identifier):
-        """Bias-compensated LSM A and B (eqs. 14, 15, 18) with the inner signal from the direct
-        inverse ``A(q)/B(q) y`` down-sampled by p (Bezout combiner if B is not minimum phase):
-        Table 5's F_INV, "U(n) estimated by passing y(t) through the direct inverse of G(q)"."""
-
-        name = "wang-lsm-inv"
-        summary = "Wang et al. 2007 LSM estimates with the direct inverse A/B (Table 5's F_INV)"
-
-        def __init__(self, pooled: bool = True) -> None:
-            self.pooled = bool(pooled)
-
-        def options(self) -> dict[str, Any]:
-            return {"pooled": self.pooled, "inverse": "auto"}
-
-        def identify(self, record, options, truth=None):
-            def numerator(dw, tau, nb, sigma2, idx):
-                return pp.b_lsm(dw, record.p, tau, nb, sigma2, t_min=pp.first_valid(dw))
-
-            return blind_fit(
-                self.name,
-                record,
-                options,
-                denominator=bias_compensated_fit,
-                numerator=numerator,
-                inner=inverse_inner("auto"),
-                pooled=self.pooled,
-                info=self.options(),
-            )
-
-    return WangLSMDirectInverse
-
-
 def _lsm_options(config: Config) -> dict[str, Any]:
     """``wang-lsm``'s options under ``config``."""
     return {"pooled": config.pooled, "eq15": config.eq15}
@@ -498,8 +430,9 @@ def make_methods(config: Config, names: Sequence[str]) -> dict[str, Any]:
 
     out: dict[str, Any] = {}
     for name in names:
-        if name == "wang-lsm-inv":
-            out[name] = _lsm_inverse_class()(pooled=config.pooled)
+        if name == "wang-lsm-inv":  # the LSM estimates in the direct inverse (F_INV)
+            kw = {"pooled": config.pooled, "inverse": "auto"}
+            out[name] = methods_from_names(["wang-lsm"], {"wang-lsm": kw})["wang-lsm"]
         elif name in WANG_VARIANTS:
             kw = {"pooled": config.pooled, **WANG_VARIANTS[name]}
             out[name] = methods_from_names(["wang"], {"wang": kw})["wang"]

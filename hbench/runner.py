@@ -146,9 +146,9 @@ def run_cell(
     Notes
     -----
     The cell computes under :func:`hbench.runtime.batch_settings`: one BLAS thread for its
-    duration, and (once per process, for good) glibc's allocator with fixed mmap and trim
-    thresholds, so freed memory stays with the process (``HBENCH_TUNE_MALLOC=0`` leaves the
-    allocator alone).
+    duration, restored afterwards. The process's allocator is left as it is; a program that
+    runs many cells may opt in to :func:`hbench.runtime.tune_allocator` (the ``hbench``
+    command does).
     """
     if int(jobs) < 1:
         raise InputError(f"jobs must be >= 1, got {jobs}")
@@ -173,7 +173,7 @@ def run_cell(
     rows: list[tidy.Block] = []
     example: dict[str, Any] = {}
     done = 0
-    with batch_settings():  # one BLAS thread, glibc's allocator tuned (hbench.runtime)
+    with batch_settings():  # one BLAS thread, restored afterwards (hbench.runtime)
         chunks = workers.map_chunks(_run_chunk, work, pieces, jobs)
         for (_start, n), (frames, ex) in zip(pieces, chunks, strict=True):
             rows.extend(frames)

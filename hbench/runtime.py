@@ -1,4 +1,4 @@
-"""Process settings under which batches of Monte Carlo runs compute fastest (issue 7).
+"""Process settings under which batches of Monte Carlo runs compute fastest.
 
 A batch of runs is many whole-record numpy passes over arrays of a few MB, and many tiny matrix
 products. Two process-wide defaults cost more than the arithmetic there, measured on the
@@ -15,9 +15,13 @@ paper's example (1000 runs, 4 methods, one process, 2-core machine):
   1 GiB trim threshold keep the memory in the process: 200 faults, no system time, 25 % less
   wall time, and the same peak resident memory.
 
-:func:`batch_settings` applies both for the duration of a cell (:func:`hbench.runner.run_cell`).
-The allocator setting is made once per process and stays (glibc cannot restore its dynamic
-thresholds); it is skipped on other C libraries, and ``HBENCH_TUNE_MALLOC=0`` turns it off.
+:func:`batch_settings` limits BLAS to one thread for the duration of a cell
+(:func:`hbench.runner.run_cell`) and restores the count afterwards. The allocator setting cannot
+be undone (glibc cannot restore its dynamic thresholds), so no library function makes it: the
+``hbench`` command applies it to its own process (:func:`hbench.cli.main`; the worker processes
+it forks inherit it) and to the launcher workers its sweeps start; a program that calls
+:func:`hbench.runner.run_cell` itself opts in with :func:`tune_allocator`. It is skipped on other
+C libraries, and ``HBENCH_TUNE_MALLOC=0`` turns it off.
 """
 
 from __future__ import annotations
@@ -40,9 +44,13 @@ TRIM_THRESHOLD = 1 << 30
 
 @functools.cache
 def tune_allocator() -> bool:
-    """Set glibc's mmap and trim thresholds (once per process); ``True`` if they are set.
+    """Set glibc's mmap and trim thresholds for the rest of the process (once); opt-in.
 
-    A no-op returning ``False`` where the C library is not glibc or ``HBENCH_TUNE_MALLOC=0``.
+    Returns
+    -------
+    bool
+        ``True`` if they are set; ``False`` (a no-op) where the C library is not glibc or the
+        environment has ``HBENCH_TUNE_MALLOC=0``.
     """
     ok = False
     if os.environ.get("HBENCH_TUNE_MALLOC", "1") != "0" and sys.platform.startswith("linux"):
@@ -79,7 +87,7 @@ def one_blas_thread() -> Iterator[None]:
 
 @contextlib.contextmanager
 def batch_settings() -> Iterator[None]:
-    """One BLAS thread for the duration (restored on exit), glibc's allocator tuned."""
-    tune_allocator()
+    """One BLAS thread for the duration (restored on exit); nothing else of the process
+    changes (the allocator is :func:`tune_allocator`'s, opt-in)."""
     with one_blas_thread():
         yield

@@ -145,27 +145,16 @@ def run(args: argparse.Namespace) -> int:
 
 def _launch(argv: Sequence[str]) -> int:
     """Run the Hydra app with ``argv`` (Hydra's own command line); return the exit status."""
-    from hydra import version
-    from hydra._internal.utils import _run_hydra, get_args_parser
-
     from hbench import config, workers
+    from hbench.hydra_adapter import run_app
 
-    version.setbase("1.3")  # what @hydra.main(version_base="1.3") does
-    parser = get_args_parser()
-    hargs = parser.parse_args(list(argv))
     root = logging.getLogger()
     saved = (root.level, list(root.handlers))
     try:
         # cells with jobs > 1 that run in this process (the basic launcher) share worker
         # processes kept for the sweep instead of forking them per cell (hbench.workers)
         with workers.kept_workers(), _unwritable_is_one_line():
-            _run_hydra(
-                args=hargs,
-                args_parser=parser,
-                task_function=task,
-                config_path=str(config.CONF_DIR),
-                config_name="config",
-            )
+            run_app(task, argv, config.CONF_DIR, "config")
     except SystemExit as exc:  # Hydra reports its own errors and exits
         code = exc.code
         return code if isinstance(code, int) else (0 if code is None else 1)
@@ -188,15 +177,11 @@ def _unwritable_is_one_line() -> Iterator[None]:
     stops with one line on stderr and exit status 2 instead of Hydra's traceback; the job being
     written is left without its ``DONE`` marker, so resuming computes it.
 
-    Hydra reports an exception of a run through ``hydra._internal.utils.run_and_report`` (a
-    traceback, then exit 1); inside this block that name is wrapped so that such exceptions
-    become ``SystemExit(2)`` first, and restored when the block ends.
+    Hydra reports an exception of a run with a traceback and exit 1; inside this block such
+    exceptions become ``SystemExit(2)`` first (:func:`hbench.hydra_adapter.report_errors`).
     """
-    from hydra._internal import utils as hydra_utils
-
     from hbench.errors import OutputError
-
-    original = hydra_utils.run_and_report
+    from hbench.hydra_adapter import report_errors
 
     def checked(func: Any) -> Any:
         try:
@@ -211,11 +196,8 @@ def _unwritable_is_one_line() -> Iterator[None]:
             tell(f"hbench sweep: error: {where}: {exc.strerror}")
             raise SystemExit(2) from None
 
-    hydra_utils.run_and_report = lambda func: original(lambda: checked(func))
-    try:
+    with report_errors(checked):
         yield
-    finally:
-        hydra_utils.run_and_report = original
 
 
 # --------------------------------------------------------------------------------------------
@@ -601,6 +583,10 @@ def task(cfg: Any) -> None:
     from hbench.errors import one_line_warnings
 
     parent = os.environ.get(PARENT_ENV, "")
+    if parent.isdigit() and int(parent) != os.getpid():  # a launcher's worker of hbench sweep
+        from hbench.runtime import tune_allocator
+
+        tune_allocator()  # as in the sweep's own process (hbench.runtime)
     with one_line_warnings("sweep"), watch_parent(int(parent) if parent.isdigit() else None):
         _task(cfg)
 

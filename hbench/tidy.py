@@ -5,7 +5,7 @@ then run 1 ..). Text columns (method, quantity, status, error, and the text iden
 handful of distinct values over tens of thousands of rows, so a block keeps them as integer
 codes into their labels; :func:`assemble` joins the blocks and turns each text column into the
 dtype pandas gives its labels (``str`` on pandas 3) by one ``take``. Converting the repeated
-Python strings row by row cost ~5x more and was a tenth of a cell's time (issue 7). The frame is
+Python strings row by row cost ~5x more and was a tenth of a cell's time. The frame is
 the one ``pd.DataFrame`` would build from the same object arrays (tested), except that a text
 column's dtype is inferred from all its values at once: a block whose errors are all ``None``
 beside blocks with messages gives the messages' dtype, where concatenating per-block frames gave

@@ -1,4 +1,4 @@
-"""Processes computing a cell's chunks (issue 7): forked for one cell, or kept for a scope.
+"""Processes computing a cell's chunks: forked for one cell, or kept for a scope.
 
 :func:`hbench.runner.run_cell` with ``jobs = n > 1`` computes the first ``1/n`` of a cell's
 chunks in this process and the others in ``n - 1`` worker processes; every run draws from its own
@@ -115,7 +115,7 @@ def _theirs(count: int, jobs: int) -> list[int]:
     the worker's piece before it at every step, idle whenever that one was slower); the workers
     compute theirs back to back meanwhile. Chunk order (the results, and the logs and warnings
     replayed) is unchanged. Interleaved kept cells of the paper's example, 16 each: median 3928
-    against 3891 runs/s (session 12)."""
+    against 3891 runs/s."""
     return list(range(max(count // jobs, 1), count))
 
 
@@ -343,6 +343,8 @@ class KeptWorkers:
 
     def __init__(self) -> None:
         self.pool: ProcessPoolExecutor | None = None
+        #: the pool's worker processes (``multiprocessing.active_children`` new at its start)
+        self.processes: list[mp.process.BaseProcess] = []
         self.size = 0
         self.forked: dict[tuple[str, str], Any] = {}  # _snapshot(self.roots) at the fork
         self.roots: frozenset[str] = frozenset()
@@ -353,12 +355,12 @@ class KeptWorkers:
     def close(self, terminate: bool = False) -> None:
         """Shut the workers down (after their current chunk), or ``terminate`` them now."""
         pool, self.pool, self.size, self.forked = self.pool, None, 0, {}
+        procs, self.processes = self.processes, []
         if pool is None:
             return
         if not terminate:
             pool.shutdown(wait=True, cancel_futures=True)
             return
-        procs = list(getattr(pool, "_processes", {}).values())  # the executor's own workers
         pool.shutdown(wait=False, cancel_futures=True)
         for proc in procs:
             proc.terminate()
@@ -377,14 +379,19 @@ class KeptWorkers:
         ):
             self.close()  # more workers wanted, or code changed since the fork: fork anew
         for attempt in range(2):
+            started = None
             if self.pool is None:
+                started = set(mp.active_children())
                 self.pool = ProcessPoolExecutor(
                     size, mp_context=mp.get_context("fork"), initializer=_watch_parent
                 )
                 self.size, self.forked, self.roots = size, now, watched
                 self.stats["forks"] += 1
             try:
-                return [self.pool.submit(_kept_chunk, *a) for a in args]
+                futures = [self.pool.submit(_kept_chunk, *a) for a in args]
+                if started is not None:  # a fork-context pool starts its workers at the first
+                    self.processes = [p for p in mp.active_children() if p not in started]
+                return futures
             except BrokenProcessPool:  # a worker died while the pool was idle
                 self.close(terminate=True)
                 if attempt:

@@ -1,4 +1,4 @@
-"""Issue 8's "beyond the paper" outputs: ``structure.csv`` and the report's section ``beyond``.
+"""The "beyond the paper" outputs: ``structure.csv`` and the report's section ``beyond``.
 
 Hand-made tidy rows give known hit rates, biases, spreads and fitness values, so the tables are
 checked exactly (floating-point means of a few numbers: ``rel=1e-12``); one tiny real sweep runs
@@ -23,7 +23,7 @@ from tests.test_report import parse
 
 pytestmark = pytest.mark.filterwarnings(f"ignore:{config.SCHEMA_NOTE}:UserWarning")
 
-#: structure.csv's columns as the issue asks for them (spelled out, not imported).
+#: structure.csv's columns (spelled out, not imported).
 STRUCTURE_COLUMNS = [
     "method",
     "nonlinearity",

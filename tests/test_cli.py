@@ -155,3 +155,12 @@ def test_simulate_changing_noise_model_keeps_noise(run_cli: RunCli, tmp_path: Pa
     assert _simulate(run_cli, white, "noise.name=white")[0] == 0
     assert _simulate(run_cli, quiet, "noise.name=white", "noise.sigma2=0")[0] == 0
     assert not np.array_equal(read_record(white).y, read_record(quiet).y)
+
+
+def test_a_command_module_that_cannot_be_imported_is_an_error(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A missing command module fails loudly instead of the command silently vanishing."""
+    monkeypatch.setattr(cli, "COMMAND_MODULES", (*cli.COMMAND_MODULES, "hbench.no_such_command"))
+    with pytest.raises(ModuleNotFoundError, match=r"hbench\.no_such_command"):
+        cli.build_parser()

@@ -1,4 +1,4 @@
-"""Methods beyond the paper (issue 8): claims tested with fixed seeds and stated standard errors."""
+"""Methods beyond the paper: claims tested with fixed seeds and stated standard errors."""
 
 from __future__ import annotations
 
@@ -24,29 +24,47 @@ def test_noise_bias_uses_the_impulse_response_of_one_over_a():
     np.testing.assert_allclose(c, [[-(0.2 + 0.5 * 0.3), -0.3]], rtol=1e-14)
 
 
-def test_coloured_noise_lsm_against_the_ivm_at_high_noise():
-    """Issue 8, claim 2, on the paper's example at sigma^2 = 1e-2 (its ZOH coloured noise).
-
-    Holds: |bias of a1| below the IVM's std (with 3 SE of our mean added), the paper's LSM
-    clearly biased, and our std below that of the IVM on phase p alone (the paper's eq. 20 at
-    l = p; std ratio <= 0.75, i.e. 3 SE of a ratio of stds from 100 runs clear of 1).
-    Does NOT hold (measured, seed 8): against hbench's default IVM, which re-estimates A from all
-    quiet phases (step iii), our std is ~1.3x the IVM's (0.042 vs 0.032); asserted here so that
-    a change is noticed; the claim is met by ``wang-iv-opt`` (next tests).
-    """
+@pytest.fixture(scope="module")
+def high_noise_a1():
+    """a1 of ``wang-lsm-cn``, ``wang-lsm`` and ``wang-iv`` (phase p, pooled) on the paper's
+    example at sigma^2 = 1e-2 (its ZOH coloured noise), 100 runs, seed 8; and the true a1."""
     record, truth = sim(runs=100, seed=8, noise__sigma2=1e-2)
-    a1 = truth.plant.a[1]
 
     def a1_of(method, **kw):
         return run_method(method, record, options=TRUE_STRUCTURE, **kw).params()["a1"]
 
-    ours, lsm = a1_of("wang-lsm-cn"), a1_of("wang-lsm")
-    iv_phase_p, iv_pooled = a1_of("wang-iv", pooled=False), a1_of("wang-iv")
+    return {
+        "true": truth.plant.a[1],
+        "ours": a1_of("wang-lsm-cn"),
+        "lsm": a1_of("wang-lsm"),
+        "iv_phase_p": a1_of("wang-iv", pooled=False),
+        "iv_pooled": a1_of("wang-iv"),
+    }
+
+
+def test_coloured_noise_lsm_against_the_ivm_at_high_noise(high_noise_a1):
+    """Claim 2 of the coloured-noise LSM, the part that holds at sigma^2 = 1e-2: |bias of a1|
+    below the IVM's std (with 3 SE of our mean added), the paper's LSM clearly biased, and our
+    std below that of the IVM on phase p alone (the paper's eq. 20 at l = p; std ratio <= 0.75,
+    i.e. 3 SE of a ratio of stds from 100 runs clear of 1)."""
+    v = high_noise_a1
+    ours, lsm, a1 = v["ours"], v["lsm"], v["true"]
     sd = np.std(ours, ddof=1)
-    assert abs(ours.mean() - a1) + 3 * sd / 10 < np.std(iv_pooled, ddof=1)
+    assert abs(ours.mean() - a1) + 3 * sd / 10 < np.std(v["iv_pooled"], ddof=1)
     assert abs(lsm.mean() - a1) > 3 * np.std(lsm, ddof=1) / 10
-    assert sd <= 0.75 * np.std(iv_phase_p, ddof=1)
-    assert sd > np.std(iv_pooled, ddof=1)  # the open part of claim 2
+    assert sd <= 0.75 * np.std(v["iv_phase_p"], ddof=1)
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="not met yet: against hbench's default IVM, which re-estimates A from all quiet "
+    "phases (step iii), wang-lsm-cn's std of a1 is ~1.3x the IVM's (0.042 vs 0.032, seed 8); "
+    "wang-iv-opt meets the claim (next tests)",
+)
+def test_coloured_noise_lsm_std_below_the_pooled_ivm(high_noise_a1):
+    """Claim 2's open part: our std of a1 below that of hbench's default (pooled) IVM."""
+    v = high_noise_a1
+    assert np.std(v["ours"], ddof=1) < np.std(v["iv_pooled"], ddof=1)
 
 
 def test_optimal_iv_exact_on_noise_free_data():
@@ -60,7 +78,7 @@ def test_optimal_iv_exact_on_noise_free_data():
 
 
 def test_optimal_iv_beats_the_ivm_at_high_noise():
-    """Issue 8, claim 2, met by the optimally weighted IV (``wang-iv-opt``), sigma^2 = 1e-2.
+    """Claim 2, met by the optimally weighted IV (``wang-iv-opt``), sigma^2 = 1e-2.
 
     Same 100 records (seed 8) for both, structure given (as the paper's Table 4):
     (i) |bias of a1| + 3 SE of its mean < the IVM's std; (ii) std(a1) below the IVM's, tested by a
@@ -132,7 +150,7 @@ def _paired_fitness(sigma2: float, runs: int = 50, seed: int = 31):
 
 @pytest.mark.parametrize("sigma2", [5e-3, 1e-2])
 def test_joint_refinement_closes_half_the_gap(sigma2):
-    """Issue 8, claim 3: F_joint - F_LSM >= (F0 - F_LSM) / 2 at sigma^2 >= 5e-3 (paper's example).
+    """Claim 3: F_joint - F_LSM >= (F0 - F_LSM) / 2 at sigma^2 >= 5e-3 (paper's example).
 
     Paired per run (the same records for all methods), 50 runs, fixed seed: the mean of
     d = (F_joint - F_LSM) - (F0 - F_LSM) / 2 must exceed 3 standard errors of d above zero.
@@ -151,7 +169,7 @@ def test_joint_refinement_loses_no_ground_at_low_noise():
 
 @pytest.mark.parametrize("nonlinearity", ["backlash", "stiction"])
 def test_delay_beyond_a3_is_estimated(nonlinearity):
-    """Issue 8, claim 1: delays 0 .. 3p - 1 (p = 5), the multiple of p unknown to the method.
+    """Claim 1: delays 0 .. 3p - 1 (p = 5), the multiple of p unknown to the method.
 
     10 runs per delay at SNR 5, fixed seeds: the total delay tau + m p is right in >= 90 % of the
     150 runs (measured 99-100 %; the misses are structure-selection errors of tau, not of m).

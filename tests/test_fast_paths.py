@@ -1,4 +1,4 @@
-"""The fast paths of issue 7 give the numbers of the plain computations they replace.
+"""The fast paths give the numbers of the plain computations they replace.
 
 Tolerances: 1e-12 relative where the same sums are taken in another order (one Gram matrix
 instead of one per regression, LAPACK instead of the Thomas loop), exact equality where the
@@ -290,7 +290,7 @@ def test_a_worker_failure_reaches_the_parent(monkeypatch):
         runner.run_cell(sc, runner.methods_from_names(["wang-lsm"]), 4, 0, jobs=2, chunk=2)
 
 
-# --- session 5: shared passes that must give the same bits as the plain lines they replace ---
+# --- shared passes that must give the same bits as the plain lines they replace ---
 
 
 def test_tidy_blocks_assemble_into_the_frame_pandas_builds_from_object_arrays():

@@ -1,8 +1,10 @@
-"""hbench.runtime: the process settings under which run_cell computes (issue 7)."""
+"""hbench.runtime: the process settings under which run_cell computes."""
 
 from __future__ import annotations
 
 import platform
+import subprocess
+import sys
 
 import pytest
 from threadpoolctl import threadpool_info
@@ -32,3 +34,28 @@ def test_the_allocator_is_tuned_once_and_only_on_glibc():
     assert runtime.tune_allocator() is first  # decided once per process
     if platform.system() != "Linux" or platform.libc_ver()[0] != "glibc":
         assert first is False
+
+
+def _allocator_tuned_after(code: str) -> bool:
+    """Whether ``code``, run in a fresh interpreter, leaves the allocator tuned."""
+    probe = (
+        f"{code}\nfrom hbench import runtime\nprint(runtime.tune_allocator.cache_info().currsize)"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", probe], capture_output=True, text=True, check=True, timeout=120
+    )
+    return out.stdout.strip().splitlines()[-1] == "1"
+
+
+def test_run_cell_leaves_the_process_allocator_alone():
+    code = (
+        "from hbench import scenarios\n"
+        "from hbench.runner import methods_from_names, run_cell\n"
+        "sc = scenarios.build(scenarios.PAPER_SECTION6)\n"
+        "run_cell(sc, methods_from_names(['wang-lsm']), 2, 0)"
+    )
+    assert not _allocator_tuned_after(code)
+
+
+def test_the_hbench_command_opts_in():
+    assert _allocator_tuned_after("from hbench.cli import main\nmain(['plugins'])")

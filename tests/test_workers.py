@@ -1,4 +1,4 @@
-"""hbench.workers: worker processes forked per cell or kept for a scope (issue 7).
+"""hbench.workers: worker processes forked per cell or kept for a scope.
 
 The kept scope must give the rows of one process, reuse its workers between cells, never run a
 cell with code or settings the parent no longer has, never hang or leave processes behind when
@@ -116,7 +116,7 @@ def test_kept_workers_are_reused_between_cells_and_closed_with_the_scope():
     work = Work(os.getpid())
     with workers.kept_workers() as scope:
         first, second = _run(whose, work), _run(whose, work)
-        kept = set(scope.pool._processes)
+        kept = {proc.pid for proc in scope.processes}
         with workers.kept_workers() as inner:  # nested: the outer scope's workers serve
             third = _run(whose, work)
         assert inner is scope
@@ -243,7 +243,7 @@ def _script(body: str) -> subprocess.CompletedProcess[str]:
 
 
 def test_a_worker_killed_while_idle_does_not_hang_the_next_cell():
-    """Session 9's kept ``multiprocessing.Pool`` waited forever here."""
+    """A kept ``multiprocessing.Pool`` would wait forever here (``concurrent.futures`` raises)."""
     body = """
         import os, signal, time, warnings
         from hbench import workers
@@ -292,7 +292,7 @@ def test_ctrl_c_ends_the_scope_at_once_and_leaves_no_worker():
         with workers.kept_workers() as scope:
             def report():
                 time.sleep(1.0)
-                print(*scope.pool._processes, flush=True)
+                print(*(proc.pid for proc in scope.processes), flush=True)
             threading.Thread(target=report, daemon=True).start()
             list(workers.map_chunks(slow, Work(os.getpid()), PIECES, 2))
         """
@@ -321,7 +321,7 @@ def test_kept_workers_exit_when_their_parent_is_killed():
         from tests.test_workers import PIECES, Work, whose
         with workers.kept_workers() as scope:
             list(workers.map_chunks(whose, Work(os.getpid()), PIECES, 2))
-            print(*scope.pool._processes, flush=True)
+            print(*(proc.pid for proc in scope.processes), flush=True)
             time.sleep(60)  # between cells
         """
     )

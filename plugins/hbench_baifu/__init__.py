@@ -15,56 +15,20 @@ from __future__ import annotations
 
 from typing import Any, ClassVar
 
-import numpy as np
-
 from hbench import polyphase as pp
 from hbench.errors import InputError
 from hbench.hookspecs import Register, hookimpl
 from hbench.identifiers import (
+    INVERSES,
     Estimate,
     Identifier,
     IdentifyOptions,
     SelectionRule,
     blind_fit,
+    inverse_inner,
     ols_fit,
 )
 from hbench.records import Record, Truth
-
-INVERSES = ("auto", "direct", "bezout", "refuse")
-
-
-def inverse_inner(choice: str):
-    """An ``inner`` step for :func:`hbench.identifiers.blind_fit`: direct or Bezout inverse.
-
-    ``auto`` uses the direct inverse when every zero of B is inside the unit circle and the
-    Bezout combiner otherwise; ``refuse`` marks non-minimum-phase runs with nan (no estimate).
-    """
-
-    def inner(y, w, a, b, p, tau, t_min):
-        n0, periods = pp.simo_periods(w.shape[1], p, tau, t_min)
-        n_first = n0 - 1
-        M = periods + 1
-        nmp = pp.max_root_modulus(b) >= 1.0
-        use_direct = (
-            (~nmp) if choice in ("auto", "refuse") else np.full(b.shape[0], choice == "direct")
-        )
-        if use_direct.all():  # every run (the usual case): no copies of the batch
-            return pp.inner_signal_direct(y, a, b, p, tau, n_first, M), n_first, "direct"
-        # from here on some runs are not minimum phase (or the Bezout combiner was chosen)
-        U = np.full((b.shape[0], M), np.nan)
-        if use_direct.any():
-            U[use_direct] = pp.inner_signal_direct(
-                y[use_direct], a[use_direct], b[use_direct], p, tau, n_first, M
-            )
-        if choice == "refuse":
-            return U, n_first, "refused-nmp"  # runs without an estimate get its reason
-        rest = ~use_direct
-        h0, h1 = pp.simo_channels(b[rest], p)
-        sys_rest = pp.simo_system(w[rest], p, tau, t_min)
-        U[rest] = pp.inner_signal_bezout(sys_rest, h0, h1)[:, :M]
-        return U, n_first, "direct+bezout" if use_direct.any() else "bezout"
-
-    return inner
 
 
 class BaiFu(Identifier):

@@ -1,4 +1,4 @@
-"""Methods beyond the paper (GitHub issue 8), each derived in its class docstring.
+"""Methods beyond the paper, each derived in its class docstring.
 
 * ``wang-lsm-cn``: the bias-compensated LSM generalised to coloured equation noise, with the
   noise correlation estimated from the quiet phases.

@@ -43,7 +43,7 @@ def delay_multiple_from_alignment(
 
 
 class DelayEstimating(Identifier):
-    """Relaxes assumption A3: the delay's multiple of p estimated from x (issue 8, part 1).
+    """Relaxes assumption A3: the delay's multiple of p estimated from x.
 
     Derivation. Output fast-sampling identifies the fractional delay tau in [0, p) (Section 3.4)
     but not its multiple m of p: y alone cannot tell ``tau`` from ``tau + m p``. The controller

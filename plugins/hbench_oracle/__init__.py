@@ -10,7 +10,6 @@ from __future__ import annotations
 from typing import ClassVar
 
 import numpy as np
-from hbench_baifu import inverse_inner
 
 from hbench import polyphase as pp
 from hbench.hookspecs import Register, hookimpl
@@ -21,6 +20,7 @@ from hbench.identifiers import (
     check_identifiable,
     empty_estimate,
     inner_ls,
+    inverse_inner,
 )
 from hbench.records import Record, Truth
 

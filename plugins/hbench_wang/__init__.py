@@ -19,12 +19,15 @@ from hbench import polyphase as pp
 from hbench.errors import InputError
 from hbench.hookspecs import Register, hookimpl
 from hbench.identifiers import (
+    INVERSES,
     Estimate,
     Identifier,
     IdentifyOptions,
     SelectionRule,
     bias_compensated_fit,
     blind_fit,
+    inner_ls,
+    inverse_inner,
     largest_order,
 )
 from hbench.records import Record, Truth
@@ -60,7 +63,13 @@ class _Wang(Identifier):
         }
 
     def _blind_fit(
-        self, record: Record, options: IdentifyOptions, denominator, numerator, selector=None
+        self,
+        record: Record,
+        options: IdentifyOptions,
+        denominator,
+        numerator,
+        selector=None,
+        inner=inner_ls,
     ) -> Estimate:
         """:func:`hbench.identifiers.blind_fit` with this method's name, options and rule."""
         return blind_fit(
@@ -69,6 +78,7 @@ class _Wang(Identifier):
             options,
             denominator=denominator,
             numerator=numerator,
+            inner=inner,
             pooled=self.pooled,
             rule=self.rule,
             info=self.options(),
@@ -117,6 +127,10 @@ class WangLSM(_Wang):
       ``modulus``, ``zero``: :func:`hbench.polyphase.noise_variance`).
       It happens in the selection tables, on active phases (wrong shifts: Table 1's tau = 4
       column) and at over-fitted orders; the fit at the paper's structure has a real root.
+    * ``inverse``: ``None`` (default) for eq. (27); one of
+      :data:`hbench.identifiers.INVERSES` for the direct inverse ``A(q)/B(q) y`` down-sampled by
+      p instead (Bezout combiner where B is not minimum phase, with ``auto``): the LSM estimates
+      in the direct inverse, Table 5's F_INV (:func:`hbench.identifiers.inverse_inner`).
 
     Consistent for ARX noise ``e / A(q)``; biased for coloured equation noise (Table 4's LSM rows).
     """
@@ -124,14 +138,21 @@ class WangLSM(_Wang):
     name: ClassVar[str] = "wang-lsm"
     summary: ClassVar[str] = "Wang et al. 2007: bias-compensated LSM (eqs. 14, 15, 18, 27)"
 
-    def __init__(self, eq15: str = "clip", **kwargs: Any) -> None:
+    def __init__(self, eq15: str = "clip", inverse: str | None = None, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         if eq15 not in EQ15_FITS:
             raise InputError(f"wang-lsm eq15 must be one of {', '.join(EQ15_FITS)}, got {eq15!r}")
-        self.eq15 = eq15
+        if inverse is not None and inverse not in INVERSES:
+            raise InputError(
+                f"wang-lsm inverse must be one of {', '.join(INVERSES)}, got {inverse!r}"
+            )
+        self.eq15, self.inverse = eq15, inverse
 
     def options(self) -> dict[str, Any]:
-        return {**super().options(), "eq15": self.eq15}
+        out = {**super().options(), "eq15": self.eq15}
+        if self.inverse is not None:  # eq. (27) by default, as the paper's LSM
+            out["inverse"] = self.inverse
+        return out
 
     def identify(
         self, record: Record, options: IdentifyOptions, truth: Truth | None = None
@@ -139,7 +160,8 @@ class WangLSM(_Wang):
         def numerator(dw, tau, nb, sigma2, idx):
             return pp.b_lsm(dw, record.p, tau, nb, sigma2, t_min=pp.first_valid(dw))
 
-        return self._blind_fit(record, options, EQ15_FITS[self.eq15], numerator)
+        inner = inner_ls if self.inverse is None else inverse_inner(self.inverse)
+        return self._blind_fit(record, options, EQ15_FITS[self.eq15], numerator, inner=inner)
 
 
 class WangIV(_Wang):
