@@ -4,11 +4,10 @@ for the development and the evaluation loops.
 
 Everything that decides the verdict (:data:`hbench.diagnose.nominal.DYNAMIC_MARGIN`,
 :data:`~hbench.diagnose.nominal.SHAPE_INDEX`, the tie rules) was set on the development loops
-only. The counts below are those of this design, never tuned on. In session 2 the evaluation
-loops were scored for this design and for a variant in which Horch's cross-correlation test
-could decide the class: both 24 of 32, the same verdict on every record. The variant was then
-dropped on synthetic evidence alone (the phase Horch reads is the PI controller's, whatever
-the valve: :func:`hbench.diagnose.nominal.oscillation_verdict`).
+only. The counts below are those of this design, never tuned on. A variant in which Horch's
+cross-correlation test could decide the class gives the same verdict on every evaluation record
+(24 of 32); it is not used, on synthetic evidence alone (the phase Horch reads is the PI
+controller's, whatever the valve: :func:`hbench.diagnose.nominal.oscillation_verdict`).
 Reproduce the table with ``python -m hbench.diagnose.calibrate real ../shared/data/stictiongpt``.
 """
 

@@ -1,6 +1,6 @@
 """``hbench diagnose``: what a nominal Hammerstein model gets wrong on a measured record.
 
-The workflow (GitHub issue 6), one submodule per step:
+The workflow, one submodule per step:
 
 * :mod:`~hbench.diagnose.nominal` - the nominal model: blind identification of ``G`` and ``U``
   for ``p >= 2``, a non-blind output-error route for a plant log (``p = 1``); the actuator class
@@ -19,6 +19,7 @@ Module-level imports stay light: the command line imports this module at start-u
 from __future__ import annotations
 
 import argparse
+from typing import Any
 
 __all__ = ["add_parser"]
 
@@ -29,7 +30,7 @@ def _run(args: argparse.Namespace) -> int:
     return run(args)
 
 
-def add_parser(subparsers: argparse._SubParsersAction) -> None:
+def add_parser(subparsers: Any) -> None:
     """Add the ``diagnose`` command to the ``hbench`` command line."""
     p = subparsers.add_parser(
         "diagnose",

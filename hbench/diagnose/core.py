@@ -6,7 +6,7 @@ ones ``(N,)`` with ``N = K p``; candidate batches put the candidate first, ``(C,
 
 The actuator maps here are the rules of :mod:`hbench.nonlinearities` written for a batch of
 *parameter* candidates (that module batches over runs with one parameter set), so a grid of
-candidates is one pass over time. ``tests/test_diagnose_core.py`` checks them against the
+candidates is one pass over time. ``tests/test_diagnose.py`` checks them against the
 library classes sample by sample.
 """
 

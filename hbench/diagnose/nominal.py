@@ -2,64 +2,31 @@
 
 ``p >= 2`` (output fast-sampling): ``G`` and the inner signal ``U`` are identified blindly on the
 fit part (default ``wang-lsm``, orders ``na <= 2`` (:data:`NA_NOMINAL`), the delay's multiple of
-``p`` as given, assumption A3); the actuator class is chosen on the graph ``(x(n), U(n))`` by BIC
-(:func:`hbench.diagnose.classes.fit_graph`, ``u = c f(x; theta) + d``); the simulated output is
-``y_hat = k G(q) f(x) + m`` with ``k, m`` by least squares on the fit part. The noise model is
-the paper's: equation error ``e / A(q)``, so the model's innovations are ``A(q) (y - y_hat)``.
+``p`` as given, assumption A3). Every actuator class is fitted to the graph ``(x(n), U(n))``
+(:func:`hbench.diagnose.classes.fit_graph`), then from there by equation error through the
+dynamics (:func:`equation_error_classes`: the likelihood of the nominal noise model), and the
+class is chosen by BIC with the rules of :func:`choose_graph` (:func:`blind_model`). The simulated
+output is ``y_hat = k G(q) f(x) + m`` with ``k, m`` and the start-up transient by least squares on
+the fit part. The noise model is the paper's: equation error ``e / A(q)``, so the model's
+innovations are ``A(q) (y - y_hat)``.
 
 ``p = 1`` (a plant log: no fast sampling, so no blind route): an output-error model from ``x`` to
 ``y`` with orders ``na = nb`` in 1..3 and delay 0..8 by BIC on the fit part; every class fitted
 through the dynamics with the linear part re-fitted for each candidate
 (:func:`hbench.diagnose.classes.fit_dynamic`); a class beats ``linear`` only when its fit
-improves by :data:`DYNAMIC_MARGIN` points (see :func:`choose_dynamic`). The noise model is white
-output noise, so the innovations are the residuals.
+improves by :data:`DYNAMIC_MARGIN` points (see :func:`choose_dynamic`). The class is decided on
+the whole record (the sticking episodes that reveal a valve may lie anywhere in a plant log);
+the parameters of the nominal model are then fitted on the fit part only, like every model
+whose validation fit is reported. The noise model is white output noise, so the innovations are
+the residuals. Oscillating plant loops (Thornhill's regularity ``r > 1``) also get He et al.'s
+curve-fitting test, which can name stiction, with Horch's cross-correlation phase reported as
+evidence only (:func:`shape_test`, :func:`oscillation_verdict`).
 
-For ``p = 1`` the class is decided on the whole record (the sticking episodes that reveal a
-valve may lie anywhere in a plant log); the parameters of the nominal model (class parameters
-and linear part) are then fitted on the fit part only, like every model whose validation fit is
-reported. Deciding the class on the fit part alone was tried (same margin): on the development
-loops of ``../shared/data/stictiongpt`` it missed 10 of the 26 records with stiction (their
-sticking episodes lie in the last third) and it scored 33/48 instead of 41/48 in a
-leave-one-loop-out choice of the margin; on synthetic plant loops
-(:func:`hbench.diagnose.generator.loop_cases`) it found 5 more of 64 sticking valves. The
-evidence conflicts, the real records weigh more, so the whole record decides.
-
-Oscillating plant loops (``p = 1``, Thornhill's regularity ``r > 1``) also get the literature's
-stiction tests, with the literature's limits, none tuned here (:func:`shape_test`): He et al.'s
-curve fitting (a triangular controller output), which can name stiction, and Horch's
-cross-correlation phase, reported as evidence only (see :func:`oscillation_verdict`).
-
-The literature's OP-PV pattern tests (:mod:`hbench.diagnose.stats`: Yamashita's stuck-pattern
-index, ``rho > 0.25``; Kano et al.'s stuck sections; Choudhury et al.'s bicoherence, ``NGI >
-0.001``, ``NLI > 0.01``) were measured with those limits and decide nothing here (``python -m
-hbench.diagnose.calibrate patterns``). On the 128 design loops (seeds 0-127) Yamashita's index
-calls 33 of 64 sticking valves but also 31 of 64 other valves (7 of 16 linear ones): under PI
-control the OP moves while a lagging or noisy PV reads steady whatever the valve, and the
-per-sample differences of these loops are mostly noise. Kano's sections call 14 of 64 and 9
-false; the bicoherence index never passes (751 samples give 10 segments, whose critical value
-the thresholded mean cannot reach). Of three combination rules fixed before measuring, the best
-(this detector or both pattern tests) found 25 of 64 sticking valves instead of 17 but raised
-the false alarms from 5 to 11 and lost 2 of the 48 development records, so none was adopted
-(``docs/experiments/literature-stiction-tests.md``).
-
-Integrating (level) loops are not treated apart. Per loop type this detector finds 6/16
-sticking valves on flow loops, 5/16 pressure, 4/16 level, 2/16 slow (false alarms 3, 1, 1, 0
-of 16; ``calibrate loops`` prints the breakdown). Deciding the class on the differenced output
-``dy`` when the data choose it was measured in three pre-registered variants (route by BIC of
-white vs random-walk output noise with a free or a static-plus-lag model of ``dy``, or by an
-ARX unit-root BIC with equation-error class fits): 7, 11 and 9 of 64 sticking valves instead
-of 17 (false alarms 4, 4, 3), and 25/48 and 31/48 on the development records for the latter
-two. None of the data criteria separates integrating loops from self-regulating ones with
-slow disturbances (the differenced route was taken on 19 to 66 of the 96 non-level loops,
-which then lost their detections), and in closed loop the unmeasured inflow the controller
-cancels biases an output-error model of ``dy`` (it picks the longest delay), so none was
-adopted (``docs/experiments/integrating-route.md``).
-
-Where the misses come from (``python -m hbench.diagnose.calibrate oracle``): on 55 of the 64
-design loops with a sticking valve, the TRUE valve position fits the PV worse through the best
-linear model than the controller output does (input disturbances the controller cancels make
-``x`` the better regressor), so no valve class fitted from ``x`` can win there; on the other 9
-this detector finds 8 (``docs/experiments/valve-position-ceiling.md``).
+What was measured on the way to these choices, and the alternatives that were not adopted (the
+class decided on the fit part alone; the literature's OP-PV pattern tests; a differenced route
+for integrating loops; where the misses on synthetic plant loops come from), is written up in
+``docs/experiments/`` (``literature-stiction-tests.md``, ``integrating-route.md``,
+``valve-position-ceiling.md``, ``diagnose-benchmark-loops.md``).
 """
 
 from __future__ import annotations
