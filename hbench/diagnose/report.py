@@ -101,7 +101,7 @@ def render_figures(d: Any) -> dict[str, dict[str, bytes]]:
     ax.axvline(t_split, color="k", ls="--", lw=0.8)
     ax.set_xlabel("t [s]")
     ax.set_ylabel("y")
-    ax.legend(loc="best", fontsize=7)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=3, fontsize=7, frameon=False)
     ax.set_title(
         f"fit part | validation part (fits in the legend: simulation; the criterion is "
         f"{d.criterion})",
