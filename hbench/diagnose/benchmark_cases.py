@@ -62,9 +62,10 @@ from hbench.diagnose.generator import (
     InjectedNoise,
     _changed_plant,
     additive_effect,
+    filter_norm,
+    simulate_effect,
     write_truth,
 )
-from hbench.diagnose.generator import _simulate_switched as simulate_switched
 from hbench.noise import ContinuousFilter
 from hbench.plants import BUILTIN as PLANTS
 from hbench.plants import ContinuousPlant
@@ -162,15 +163,10 @@ def _scenario(case: BenchCase, plant: ContinuousPlant, nl: dict[str, Any]) -> Sc
     return sc
 
 
-def _noise_filter(plant: ContinuousPlant, sc: Scenario) -> tuple[np.ndarray, np.ndarray]:
-    """``(C, A)``: white noise through ``1 / den(s)`` of the plant, ZOH at h."""
-    return ContinuousFilter((1.0,), plant.den).filter(sc.discrete_plant)
-
-
-def _norm(c: Any, d: Any) -> float:
-    imp = np.zeros(8000)
-    imp[0] = 1.0
-    return float(np.linalg.norm(signal.lfilter(c, d, imp)))
+def _noise_filter(plant: ContinuousPlant, at: Any) -> tuple[np.ndarray, np.ndarray]:
+    """``(C, A)``: white noise through ``1 / den(s)`` of ``plant``, ZOH at the fast period of
+    ``at`` (a discrete plant)."""
+    return ContinuousFilter((1.0,), plant.den).filter(at)
 
 
 #: The slow-rate closed loop (actuator as unit gain) must have a spectral radius below this.
@@ -297,9 +293,8 @@ def draw_bench_case(
     elif effect == "outliers":
         ep.update(share=float(rng.uniform(0.005, 0.015)), amplitude=[3.0 * s, 6.0 * s])
     # the nominal noise's level: the paper's sigma^2 on its plant, the paper's SNR elsewhere
-    sc = _scenario(case, base, {"name": "linear"})
-    c, d = _noise_filter(base, sc)
-    sigma = np.sqrt(sigma2) if plant == "paper" else s / paper_snr(sigma2) / _norm(c, d)
+    c, d = _noise_filter(base, loops[0])
+    sigma = np.sqrt(sigma2) if plant == "paper" else s / paper_snr(sigma2) / filter_norm(c, d, 8000)
     return BenchCase(
         seed,
         effect,
@@ -321,13 +316,19 @@ def _nl_spec(case: BenchCase) -> dict[str, Any]:
     return out
 
 
+def nominal_plant(case: BenchCase) -> ContinuousPlant:
+    """The plant the case was drawn with, before any effect changes it."""
+    ep = case.effect_params
+    return ContinuousPlant(
+        tuple(ep["plant_num"]), tuple(ep["plant_den"]), PLANTS[case.plant]().delay, 0.0, case.plant
+    )
+
+
 def case_plant(case: BenchCase) -> ContinuousPlant:
     """The plant that generates the record (with the ``order`` effect's lags and the ``delay``
     effect's extra delay)."""
     ep = case.effect_params
-    base = ContinuousPlant(
-        tuple(ep["plant_num"]), tuple(ep["plant_den"]), PLANTS[case.plant]().delay, 0.0, case.plant
-    )
+    base = nominal_plant(case)
     if case.effect == "order":
         base = _with_lags(base, list(ep["taus"]))
     if case.effect == "delay":
@@ -342,13 +343,10 @@ def simulate_bench_case(case: BenchCase) -> Record:
     rng = np.random.default_rng(np.random.SeedSequence([20261128, case.seed]))
     ep = case.effect_params
     N = case.K * case.p
-    nominal_plant = ContinuousPlant(
-        tuple(ep["plant_num"]), tuple(ep["plant_den"]), PLANTS[case.plant]().delay, 0.0, case.plant
-    )
     sc = _scenario(case, case_plant(case), _nl_spec(case))
     # the nominal noise: the nominal plant's own process noise (an extra lag or delay of the
     # plant is the effect, not the noise's)
-    c, d = _noise_filter(nominal_plant, _scenario(case, nominal_plant, {"name": "linear"}))
+    c, d = _noise_filter(nominal_plant(case), sc.discrete_plant)
     if case.effect == "colored-noise":
         cc, dd = (1.0, ep["c1"]), (1.0, -ep["d1"])
         col = signal.lfilter(cc, dd, rng.standard_normal(N))
@@ -357,11 +355,7 @@ def simulate_bench_case(case: BenchCase) -> Record:
         add = additive_effect(case.effect, ep, N, rng)
     sc.noise = InjectedNoise(case.noise_sigma, c, d, add)
     sc.sigma2 = 1.0
-    if case.effect == "time-varying":
-        plant2 = _changed_plant(sc.discrete_plant, ep["gain"], ep["time_constant"])
-        return simulate_switched(sc, plant2, int(ep["at"] * case.K), rng)
-    record, _ = simulate(sc, 1, rng)
-    return record
+    return simulate_effect(sc, case.effect, ep, case.K, rng)
 
 
 def write_bench_case(case: BenchCase, directory: Path | str, suffix: str = ".csv") -> Path:

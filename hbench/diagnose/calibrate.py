@@ -69,23 +69,24 @@ def run_case(case: gen.Case | bc.BenchCase) -> dict[str, Any]:
     except Exception as exc:
         row.update(cause="error", found_cls="error", error=f"{type(exc).__name__}: {exc}")
         return row
+    nl = d.nonlinearity
     row.update(
         cause=d.cause,
-        found_cls=d.nonlinearity["class"],
+        found_cls=nl["class"],
         baseline=d.baseline_fit,
         extended=d.extended_fit,
         gain=d.gain,
-        criterion=getattr(d, "criterion", "simulation"),
-        margin=d.nonlinearity.get("margin"),
-        confident=d.nonlinearity.get("confident"),
+        criterion=d.criterion,
+        margin=nl["margin"],
+        confident=nl["confident"],
         seconds=d.seconds,
         stats={x.name: x.statistic for x in d.detections},
         fired=[x.name for x in d.detections if x.fired],
         ext={k: v.val_fit - d.baseline_fit for k, v in d.extensions.items()},
-        fits={"nominal": d.fits.get("nominal", {}), **{k: v.fits for k, v in d.extensions.items()}},
+        fits={"nominal": d.fits["nominal"], **{k: v.fits for k, v in d.extensions.items()}},
         p_values={x.name: x.p_value for x in d.detections},
         thresholds={x.name: x.threshold for x in d.detections},
-        margin_scores=d.nonlinearity["scores"],
+        margin_scores=nl["scores"],
     )
     return row
 

@@ -77,7 +77,10 @@ def _num(v: float, undefined: float) -> float:
     return v
 
 
-def _fmt_p(p: float) -> str:
+def format_p(p: float) -> str:
+    """A p-value for the evidence and the report: ``< 1e-300`` below that, ``n/a`` for nan."""
+    if np.isnan(p):
+        return "n/a"
     return f"{p:.2g}" if p >= 1e-300 else "< 1e-300"
 
 
@@ -126,7 +129,7 @@ class Effect:
             verdict = f"fires: effect size above it and p < {ALPHA:g}"
         elif large:
             verdict = (
-                f"quiet: effect size above it but p = {_fmt_p(p_value)} is not below {ALPHA:g}"
+                f"quiet: effect size above it but p = {format_p(p_value)} is not below {ALPHA:g}"
             )
         elif significant:
             verdict = (
@@ -218,7 +221,7 @@ class ColoredNoise(Effect):
             f"innovations' autocorrelation at lags 1-3 {r[0]:.2f}, {r[1]:.2f}, {r[2]:.2f}; "
             f"sum of r^2 over {self.NLAGS} lags {s1:.3g} (threshold {self.INNOV_WHITE:g}), "
             f"of the equation error {s2:.3g} (threshold {self.EQ_WHITE:g}); Ljung-Box "
-            f"p = {_fmt_p(p)}",
+            f"p = {format_p(p)}",
         )
 
     def extend(self, ctx: nm.Context, nom: nm.Nominal, det: Detection) -> core.Model:
@@ -282,7 +285,7 @@ class Drift(Effect):
             ratio,
             p,
             f"residual power in the 3 lowest frequency bins is "
-            f"{ratio:.3g} x that of bins 4-20 (F-test p = {_fmt_p(p)}){noise}; "
+            f"{ratio:.3g} x that of bins 4-20 (F-test p = {format_p(p)}){noise}; "
             f"residual trend {slope:+.3g} over the fit part",
             threshold=q,
         )
@@ -410,7 +413,7 @@ class Outliers(Effect):
             share,
             p,
             f"{count} isolated residual spikes beyond {self.K_SIGMA:g} "
-            f"robust sigmas ({share:.2g} % of the fit part, p = {_fmt_p(p)}); "
+            f"robust sigmas ({share:.2g} % of the fit part, p = {format_p(p)}); "
             f"excess kurtosis {kurt:.3g}",
             count=count,
         )
@@ -522,7 +525,7 @@ class TimeVarying(Effect):
             f"separate fits before and after {100 * at / ctx.n_fit:.0f} % "
             f"of the fit part (t = {at * ctx.h:.4g} s) lower the equation-error RSS "
             f"by {eq:.3g} % and the simulation's by {sim:.3g} % (Chow F {f:.3g}, "
-            f"Bonferroni p = {_fmt_p(p)}); statistic: the larger drop over its "
+            f"Bonferroni p = {format_p(p)}); statistic: the larger drop over its "
             f"threshold ({self.EQ_DROP:g} %, {sim_t:.3g} %){null_note}",
             at=at,
         )
@@ -631,7 +634,7 @@ class Order(Effect):
             drop,
             p,
             f"one more pole and zero (na {na0} -> {na0 + 1}) lower the "
-            f"equation-error RSS by {drop:.3g} % (F = {f:.3g}, p = {_fmt_p(p)})",
+            f"equation-error RSS by {drop:.3g} % (F = {f:.3g}, p = {format_p(p)})",
             na0=na0,
             nb0=nb0,
         )
@@ -639,16 +642,17 @@ class Order(Effect):
     def extend(self, ctx: nm.Context, nom: nm.Nominal, det: Detection) -> core.Model:
         na0 = int(det.info["na0"])
         n = ctx.n_fit
+        kw = _nominal_kw(ctx, nom)
         best: tuple[float, core.Model] | None = None
         for na in (na0 + 1, na0 + 2):
             if ctx.p >= 2 and nom.estimate is not None:
                 try:
                     est = nm.identify_blind(
                         ctx,
-                        nom.info.get("method", "wang-lsm"),
+                        kw["method"],
                         na=na,
                         na_range=(1, na),
-                        delay_multiple=_nominal_kw(ctx, nom)["delay_multiple"],
+                        delay_multiple=kw["delay_multiple"],
                     )
                 except Exception:
                     est = None
@@ -656,9 +660,9 @@ class Order(Effect):
                     cand_m = nm.blind_model(
                         ctx,
                         est,
-                        delay_multiple=_nominal_kw(ctx, nom)["delay_multiple"],
+                        delay_multiple=kw["delay_multiple"],
                         label="order",
-                        candidates=(nom.chosen,),
+                        candidates=kw["candidates"],
                     )[0]
                 else:
                     cand_m = core.fit_output(

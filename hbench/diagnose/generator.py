@@ -329,11 +329,12 @@ def _nl_spec(case: Case) -> dict[str, Any]:
     return out
 
 
-def _filter_norm(c: Any, d: Any) -> float:
-    """``||C/D||_2``: the standard deviation of ``C/D e`` for unit white ``e``."""
+def filter_norm(c: Any, d: Any, n: int = 4000) -> float:
+    """``||C/D||_2`` over the first ``n`` terms of the impulse response: the standard deviation
+    of ``C/D e`` for unit white ``e``."""
     from scipy import signal as sps
 
-    imp = np.zeros(4000)
+    imp = np.zeros(n)
     imp[0] = 1.0
     return float(np.linalg.norm(sps.lfilter(c, d, imp)))
 
@@ -381,7 +382,7 @@ def _noise(case: Case, N: int, rng: np.random.Generator, plant: DiscretePlant) -
         c, d = (1.0, ep["c1"]), tuple(np.convolve([1.0, -ep["d1"]], plant.a))
     add = additive_effect(case.effect, ep, N, rng)
     # sigma so that the noise (without drift and spikes) has the case's SNR
-    sigma = s / case.snr / _filter_norm(c, plant.a if d is None else d)
+    sigma = s / case.snr / filter_norm(c, plant.a if d is None else d)
     return InjectedNoise(sigma, c, d, add)
 
 
@@ -450,10 +451,18 @@ def simulate_case(case: Case) -> Record:
     N = case.K * case.p
     sc = _scenario(case, InjectedNoise(0.0))
     sc.noise = _noise(case, N, rng, sc.discrete_plant)
-    if case.effect == "time-varying":
-        ep = case.effect_params
+    return simulate_effect(sc, case.effect, case.effect_params, case.K, rng)
+
+
+def simulate_effect(
+    sc: Scenario, effect: str, ep: dict[str, Any], K: int, rng: np.random.Generator
+) -> Record:
+    """One run of ``sc``; for ``time-varying`` the plant changes (gain times ``ep["gain"]``,
+    time constants times ``ep["time_constant"]``) at the share ``ep["at"]`` of the ``K``
+    slow samples."""
+    if effect == "time-varying":
         plant2 = _changed_plant(sc.discrete_plant, ep["gain"], ep["time_constant"])
-        return _simulate_switched(sc, plant2, int(ep["at"] * case.K), rng)
+        return _simulate_switched(sc, plant2, int(ep["at"] * K), rng)
     record, _ = simulate(sc, 1, rng)
     return record
 

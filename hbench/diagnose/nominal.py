@@ -335,7 +335,6 @@ def equation_error_classes(
     model: core.Model,
     ctx: Context,
     graph: dict[str, classes.ClassFit],
-    idx: np.ndarray | None = None,
     which: tuple[str, ...] = core.CLASSES,
 ) -> dict[str, classes.ClassFit]:
     """Every class fitted by equation error through the blind model's orders and delay
@@ -345,9 +344,10 @@ def equation_error_classes(
     Equation error is the likelihood of the nominal noise model (``e / A``, the paper's eq. 2),
     computed from ``x`` and ``y``; the graph of the blind inner signal carries the noise of
     the blind estimate as well, which hides a small slip jump or dead zone. ``info["eq"]``
-    holds the fitted ``[a, b, m]``; ``info["graph_score"]`` the graph's score.
+    holds the fitted ``[a, b, m]``. The fits are on the fit part; ``which`` limits the classes
+    (``linear`` is always fitted: the scores are relative to it).
     """
-    idx = ctx.fit_idx if idx is None else idx
+    idx = ctx.fit_idx
     na, nb, delay = model.lin.na, max(model.lin.nb, 2), model.lin.delay
     xs = shifted(ctx.x, model.shift)
     x_fit = ctx.x[: ctx.k_fit]
@@ -383,7 +383,6 @@ def equation_error_classes(
                 if theta or cls == "linear"
                 else 0.0,
                 "eq": th,
-                "graph_score": float(g.score) if g is not None else float("nan"),
             },
         )
     base = out["linear"].bic

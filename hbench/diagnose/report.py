@@ -13,6 +13,7 @@ import numpy as np
 
 from hbench import atomic
 from hbench.diagnose import core, stats
+from hbench.diagnose.effects import format_p
 
 FIGURES: tuple[tuple[str, str], ...] = (
     ("simulation", "Measured output and the simulations of the nominal and the extended model"),
@@ -214,8 +215,8 @@ def _rows(d: Any) -> list[dict[str, str]]:
                 "statistic": _value(det.statistic, ".4g", "the statistic could not be computed"),
                 "threshold": _value(det.threshold, ".4g", "no threshold"),
                 "p-value": (
-                    "< 1e-300"
-                    if det.p_value < 1e-300 and det.p_value >= 0
+                    format_p(det.p_value)
+                    if np.isfinite(det.p_value)
                     else _value(det.p_value, ".2g", "no test gives one")
                 ),
                 "verdict": "fires" if det.fired else "quiet",

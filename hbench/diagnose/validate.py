@@ -376,14 +376,18 @@ def predict(y: np.ndarray, ysim: np.ndarray, d: np.ndarray | None, horizon: int)
     return y - signal.lfilter(np.convolve(fk, d), [1.0], y - ysim)
 
 
-def criterion_fit(
-    ctx: nm.Context, model: core.Model, nominal: core.Model, criterion: Criterion
-) -> float:
-    """The model's fit in % on the validation part under ``criterion``."""
+def criteria_fits(
+    ctx: nm.Context, model: core.Model, nominal: core.Model, criteria: list[Criterion]
+) -> dict[str, float]:
+    """The model's fit in % on the validation part under each of ``criteria``, by name (the
+    model simulated once for all of them)."""
     idx = ctx.val_idx
     ysim = model.simulate(ctx.x)
-    yhat = predict(ctx.y, ysim, noise_filter(model, nominal), criterion.horizon)
-    return core.fit_percent(ctx.y[idx], yhat[idx])
+    d = noise_filter(model, nominal)
+    return {
+        c.name: core.fit_percent(ctx.y[idx], predict(ctx.y, ysim, d, c.horizon)[idx])
+        for c in criteria
+    }
 
 
 def parse_criterion(rule: str) -> Criterion | None:
@@ -512,7 +516,7 @@ def _diagnose(
             shown.append(c)
 
     def fits_of(model: core.Model) -> dict[str, float]:
-        return {c.name: criterion_fit(ctx, model, nominal.model, c) for c in shown}
+        return criteria_fits(ctx, model, nominal.model, shown)
 
     base_fits = fits_of(nominal.model)
     base = base_fits[crit.name]
