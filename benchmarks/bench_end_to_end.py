@@ -1,9 +1,10 @@
 """End to end on the paper's example: simulate + wang-lsm + wang-iv + bai-fu + oracle + metrics +
 tidy rows, batched, against the naive baseline of ``naive.py`` in the same run.
 
-* ``test_end_to_end[jobs]``: :func:`hbench.runner.run_cell` on 1000 runs in batches of 200 (the
+* ``test_end_to_end[jobs]``: :func:`hbench.bench.runner.run_cell` on 1000 runs in batches of 200
+  (the
   default chunk), in one process (``jobs=1``), two forked worker processes (``jobs=2``, a fork
-  per cell) or workers kept for the scope (``2-kept``, :func:`hbench.workers.kept_workers`, as
+  per cell) or workers kept for the scope (``2-kept``, :func:`hbench.bench.workers.kept_workers`, as
   ``hbench sweep`` runs cells). Every round records its CPU seconds (this process and its reaped
   children) and page faults; the ``jobs=2`` cases split their speed-up into cores kept busy x one
   process's CPU per run over two's.
@@ -40,9 +41,10 @@ import numpy as np
 import pytest
 from pytest_benchmark.fixture import BenchmarkFixture
 
-from hbench import kernels, workers
-from hbench.runner import methods_from_names, run_cell
-from hbench.simulate import Scenario
+from hbench.bench import workers
+from hbench.bench.runner import methods_from_names, run_cell
+from hbench.numerics import kernels
+from hbench.sim.simulate import Scenario
 
 sys.path.insert(0, str(Path(__file__).parent))
 from naive import run_naive
@@ -87,7 +89,7 @@ def _kept_pids() -> list[int]:
 def test_end_to_end(
     benchmark: BenchmarkFixture, paper_scenario: Scenario, jobs: int, kept: bool
 ) -> None:
-    """``[2-kept]``: the cells inside :func:`hbench.workers.kept_workers` (as ``hbench sweep``
+    """``[2-kept]``: the cells inside :func:`hbench.bench.workers.kept_workers` (as ``hbench sweep``
     runs them); the warm-up round forks the workers and is timed apart (``first_cell_seconds``)."""
     runs = 1000
     methods = methods_from_names(METHODS)
@@ -139,9 +141,9 @@ def test_end_to_end(
 _PAIR_SCRIPT = textwrap.dedent(
     """
     import json, sys, time
-    from hbench import scenarios
-    from hbench.runner import methods_from_names, run_cell
-    from hbench.runtime import tune_allocator
+    from hbench.sim import scenarios
+    from hbench.bench.runner import methods_from_names, run_cell
+    from hbench.system.runtime import tune_allocator
     tune_allocator()  # as the hbench command does
     sc = scenarios.build(scenarios.PAPER_SECTION6)
     methods = methods_from_names({methods!r})
@@ -263,9 +265,9 @@ def _versus_batched(benchmark: BenchmarkFixture, key: str, what: str, rate: floa
 _MEMORY_SCRIPT = textwrap.dedent(
     """
     import resource, sys, time
-    from hbench import scenarios
-    from hbench.runner import methods_from_names, run_cell
-    from hbench.runtime import tune_allocator
+    from hbench.sim import scenarios
+    from hbench.bench.runner import methods_from_names, run_cell
+    from hbench.system.runtime import tune_allocator
     tune_allocator()  # as the hbench command does
     sc = scenarios.build(scenarios.PAPER_SECTION6)
     t0 = time.perf_counter()

@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 from pytest_benchmark.fixture import BenchmarkFixture
 
-from hbench import polyphase as pp
-from hbench.identifiers import IdentifyOptions, identify
+from hbench.ident import polyphase as pp
+from hbench.ident.identifiers import IdentifyOptions, identify
 from hbench.plugins import registry
-from hbench.simulate import Scenario, simulate
+from hbench.sim.simulate import Scenario, simulate
 
 METHODS = ["wang-lsm", "wang-iv", "bai-fu", "sun-liu-sano", "oracle", "oracle-inv"]
 

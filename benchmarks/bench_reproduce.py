@@ -11,7 +11,8 @@ for 1000 runs of the paper's example, from the channels' moments (as the method 
 against the equations' rows written out (``tests/test_sls.py``'s reference), same run.
 
 Before/after in one run: set ``HBENCH_BENCH_BASELINE`` to the source tree of another
-revision (``git archive REV | tar -x -C DIR`` and its compiled ``hbench/_kernels*.so`` copied
+revision (``git archive REV | tar -x -C DIR`` and its compiled ``hbench/numerics/_kernels*.so``
+copied
 in); ``test_reproduce[baseline-*]`` then runs that tree with this environment's interpreter in the
 same run as ``test_reproduce[this-*]``, and the later of each pair records
 ``ratio_to_baseline`` (this / baseline). Without the variable the baseline cases are skipped.
@@ -29,8 +30,8 @@ import pytest
 from hbench_sls import cross_relation_gram
 from pytest_benchmark.fixture import BenchmarkFixture
 
-from hbench import polyphase as pp
-from hbench.simulate import Scenario, simulate
+from hbench.ident import polyphase as pp
+from hbench.sim.simulate import Scenario, simulate
 from tests.test_sls import rows_gram
 
 _seconds: dict[str, float] = {}

@@ -1,11 +1,11 @@
-"""Throughput of :func:`hbench.simulate.simulate` on the paper's example (500 s, p = 5)."""
+"""Throughput of :func:`hbench.sim.simulate.simulate` on the paper's example (500 s, p = 5)."""
 
 from __future__ import annotations
 
 import numpy as np
 from pytest_benchmark.fixture import BenchmarkFixture
 
-from hbench.simulate import Scenario, simulate
+from hbench.sim.simulate import Scenario, simulate
 
 
 def _run(benchmark: BenchmarkFixture, scenario: Scenario, runs: int) -> None:

@@ -13,8 +13,9 @@ from typing import Any
 
 import pytest
 
-from hbench import runtime, scenarios
-from hbench.simulate import Scenario
+from hbench.sim import scenarios
+from hbench.sim.simulate import Scenario
+from hbench.system import runtime
 
 
 def pytest_collect_file(file_path: Path, parent: pytest.Collector) -> pytest.Module | None:
@@ -30,7 +31,7 @@ def pytest_collect_file(file_path: Path, parent: pytest.Collector) -> pytest.Mod
 @pytest.fixture(scope="session", autouse=True)
 def _tuned_allocator() -> None:
     """The benchmarks measure the library as the ``hbench`` command runs it: with glibc's
-    allocator tuned (:func:`hbench.runtime.tune_allocator`, opt-in)."""
+    allocator tuned (:func:`hbench.system.runtime.tune_allocator`, opt-in)."""
     runtime.tune_allocator()
 
 

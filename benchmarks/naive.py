@@ -2,7 +2,7 @@
 
 Each run is simulated alone (a batch of one), every method identifies it alone, the inner
 signal of eq. (27) is solved by a dense least-squares solve, and the fitness is scored per run,
-all on the pure-numpy path (no compiled kernels: ``hbench.kernels.use("numpy")``).
+all on the pure-numpy path (no compiled kernels: ``hbench.numerics.kernels.use("numpy")``).
 It computes the same estimates as the batched path (checked in ``bench_end_to_end.py``), so
 every throughput figure of hbench can be quoted as a ratio against it, measured in the same
 run. Not part of the package: a benchmark's yardstick only.
@@ -15,16 +15,16 @@ from contextlib import contextmanager
 
 import numpy as np
 
-from hbench import kernels
-from hbench import polyphase as pp
-from hbench.identifiers import Identifier, IdentifyOptions, identify
-from hbench.metrics import fitness
-from hbench.simulate import Scenario, simulate
+from hbench.bench.metrics import fitness
+from hbench.ident import polyphase as pp
+from hbench.ident.identifiers import Identifier, IdentifyOptions, identify
+from hbench.numerics import kernels
+from hbench.sim.simulate import Scenario, simulate
 
 
 @contextmanager
 def dense_inner_signal() -> Iterator[None]:
-    """Route eq. (27) through :func:`hbench.polyphase.inner_signal_dense` while active."""
+    """Route eq. (27) through :func:`hbench.ident.polyphase.inner_signal_dense` while active."""
     saved = pp.inner_signal_ls
     pp.inner_signal_ls = pp.inner_signal_dense
     try:

@@ -7,7 +7,7 @@ from hbench.hookspecs import Register, hookimpl
 
 @hookimpl
 def register_nonlinearities(register: Register) -> None:
-    from hbench import nonlinearities as nl
+    from hbench.model import nonlinearities as nl
 
     for cls in nl.BUILTIN:
         register(cls.name, cls)
@@ -15,7 +15,7 @@ def register_nonlinearities(register: Register) -> None:
 
 @hookimpl
 def register_plants(register: Register) -> None:
-    from hbench import plants
+    from hbench.model import plants
 
     for name, factory in plants.BUILTIN.items():
         register(name, factory)
@@ -23,7 +23,7 @@ def register_plants(register: Register) -> None:
 
 @hookimpl
 def register_controllers(register: Register) -> None:
-    from hbench import controllers
+    from hbench.model import controllers
 
     for cls in controllers.BUILTIN:
         register(cls.name, cls)
@@ -31,7 +31,7 @@ def register_controllers(register: Register) -> None:
 
 @hookimpl
 def register_noise_models(register: Register) -> None:
-    from hbench import noise
+    from hbench.model import noise
 
     for cls in noise.BUILTIN:
         register(cls.name, cls)
@@ -39,7 +39,7 @@ def register_noise_models(register: Register) -> None:
 
 @hookimpl
 def register_references(register: Register) -> None:
-    from hbench import signals
+    from hbench.model import signals
 
     for cls in signals.BUILTIN:
         register(cls.name, cls)
@@ -47,7 +47,7 @@ def register_references(register: Register) -> None:
 
 @hookimpl
 def register_readers(register: Register) -> None:
-    from hbench import readers
+    from hbench.io import readers
 
     for reader in readers.READERS:
         register(reader.name, reader)

@@ -118,15 +118,15 @@ def _cmd_plugins(args: argparse.Namespace) -> int:
             print("  (none)")
         for e in entries:
             print(f"  {e['name']:<22} {e['source']:<24} {e['object']}")
-    from hbench import kernels
+    from hbench.numerics import kernels
 
     print(f"kernels: {kernels.status()}")
     return 0
 
 
 def _cmd_inspect(args: argparse.Namespace) -> int:
+    from hbench.io.readers import read_record
     from hbench.plugins import registry
-    from hbench.readers import read_record
 
     readers = [registry().get("readers", n) for n in registry().names("readers")]
     rec = read_record(args.record, p=args.p, readers=readers)
@@ -151,9 +151,9 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from hbench import scenarios
-    from hbench.readers import writable_kind, write_record
-    from hbench.simulate import simulate
+    from hbench.io.readers import writable_kind, write_record
+    from hbench.sim import scenarios
+    from hbench.sim.simulate import simulate
 
     out = check_output(args.out, "--out")
     writable_kind(out)  # before the simulation, not after it
@@ -238,9 +238,9 @@ def build_parser() -> argparse.ArgumentParser:
 #: Modules that each add one command through ``add_parser(subparsers)``; the parser sets
 #: ``func(args) -> int``. Their module-level imports must stay light (start-up time).
 COMMAND_MODULES: tuple[str, ...] = (
-    "hbench.sweep",
-    "hbench.reproduce",
-    "hbench.report",
+    "hbench.sweep.app",
+    "hbench.paper.reproduce",
+    "hbench.report.build",
     "hbench.diagnose",
 )
 
@@ -249,7 +249,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``hbench`` console script.
 
     A command runs with glibc's allocator tuned for the process
-    (:func:`hbench.runtime.tune_allocator`; ``HBENCH_TUNE_MALLOC=0`` leaves it alone).
+    (:func:`hbench.system.runtime.tune_allocator`; ``HBENCH_TUNE_MALLOC=0`` leaves it alone).
     """
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
@@ -261,9 +261,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 0
-    from hbench.runtime import tune_allocator
+    from hbench.system.runtime import tune_allocator
 
-    tune_allocator()  # the command's own process (and the workers it forks): hbench.runtime
+    tune_allocator()  # the command's own process (and the workers it forks): hbench.system.runtime
     try:
         with one_line_warnings(args.command):
             return int(args.func(args) or 0)

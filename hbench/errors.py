@@ -36,7 +36,7 @@ class UnstableError(InputError):
 
 class OutputError(InputError):
     """An output file that cannot be written (no space left, a read-only file system, a folder
-    that takes no files); nothing is left under its name (:mod:`hbench.atomic`)."""
+    that takes no files); nothing is left under its name (:mod:`hbench.system.atomic`)."""
 
 
 class AggregationError(RuntimeError):
@@ -46,7 +46,7 @@ class AggregationError(RuntimeError):
 
 class MethodError(RuntimeError):
     """A method (an identifier plugin) broke its interface: it returned something that is not
-    a valid :class:`hbench.identifiers.Estimate` for the record, or raised where the command
+    a valid :class:`hbench.ident.identifiers.Estimate` for the record, or raised where the command
     line calls it directly. The message names the method. Not bad input: the command line
     prints it on one line and exits with status 1; a benchmark cell records failed rows for
     that method only."""

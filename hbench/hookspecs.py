@@ -35,35 +35,38 @@ Register = Callable[[str, Any], None]
 def register_identifiers(register: Register) -> None:
     """Register blind identification methods: ``register(name, cls)``.
 
-    ``cls`` subclasses :class:`hbench.identifiers.Identifier`.
+    ``cls`` subclasses :class:`hbench.ident.identifiers.Identifier`.
     """
 
 
 @hookspec
 def register_nonlinearities(register: Register) -> None:
     """Register actuator models: ``register(name, cls)``, ``cls`` a
-    :class:`hbench.nonlinearities.Nonlinearity` subclass."""
+    :class:`hbench.model.nonlinearities.Nonlinearity` subclass."""
 
 
 @hookspec
 def register_plants(register: Register) -> None:
     """Register plants: ``register(name, factory)``; ``factory(**params)`` returns a
-    :class:`hbench.plants.PlantModel`."""
+    :class:`hbench.model.plants.PlantModel`."""
 
 
 @hookspec
 def register_controllers(register: Register) -> None:
-    """Register controllers: ``register(name, cls)``, a :class:`hbench.controllers.Controller`."""
+    """Register controllers: ``register(name, cls)``, a
+    :class:`hbench.model.controllers.Controller`."""
 
 
 @hookspec
 def register_noise_models(register: Register) -> None:
-    """Register output noise models: ``register(name, cls)``, a :class:`hbench.noise.NoiseModel`."""
+    """Register output noise models: ``register(name, cls)``, a
+    :class:`hbench.model.noise.NoiseModel`."""
 
 
 @hookspec
 def register_references(register: Register) -> None:
-    """Register reference signals: ``register(name, cls)``, a :class:`hbench.signals.Reference`."""
+    """Register reference signals: ``register(name, cls)``, a
+    :class:`hbench.model.signals.Reference`."""
 
 
 @hookspec

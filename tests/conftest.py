@@ -8,8 +8,9 @@ from typing import Any
 
 import pytest
 
-from hbench import cli, scenarios
-from hbench.simulate import Scenario
+from hbench import cli
+from hbench.sim import scenarios
+from hbench.sim.simulate import Scenario
 
 SpecFactory = Callable[..., dict[str, Any]]
 
@@ -39,7 +40,8 @@ def make_spec() -> SpecFactory:
 
 @pytest.fixture
 def make_scenario() -> Callable[..., Scenario]:
-    """``make_scenario(overrides=None, **top)``: :func:`hbench.scenarios.build` of ``make_spec``."""
+    """``make_scenario(overrides=None, **top)``: :func:`hbench.sim.scenarios.build` of
+    ``make_spec``."""
 
     def make(overrides: Mapping[str, Any] | None = None, **top: Any) -> Scenario:
         return scenarios.build(_make_spec(overrides, **top))

@@ -12,12 +12,12 @@ from typing import Any
 
 import numpy as np
 
-from hbench import scenarios
 from hbench.hookspecs import hookimpl
-from hbench.identifiers import Estimate, Identifier, IdentifyOptions, identify
+from hbench.ident.identifiers import Estimate, Identifier, IdentifyOptions, identify
 from hbench.plugins import register_module, registry, unregister_module
-from hbench.records import Record, Truth
-from hbench.simulate import simulate
+from hbench.sim import scenarios
+from hbench.sim.records import Record, Truth
+from hbench.sim.simulate import simulate
 
 TRUE_STRUCTURE = IdentifyOptions(na=2, tau=3, nb=2)
 

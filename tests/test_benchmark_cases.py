@@ -8,7 +8,7 @@ import pytest
 
 from hbench.diagnose import benchmark_cases as bc
 from hbench.diagnose.generator import CLASSES, EFFECTS
-from hbench.simulate import closed_loop_radius
+from hbench.sim.simulate import closed_loop_radius
 
 
 def test_seed_ranges_are_disjoint() -> None:
@@ -45,7 +45,7 @@ def test_every_plant_gives_a_stable_loop_in_its_ranges(plant: str) -> None:
         c = bc.draw_bench_case(seed, effect, cls, plant)
         assert c.controller["name"] in ("p", "pi")
         h = c.T / c.p
-        from hbench.controllers import PI, P
+        from hbench.model.controllers import PI, P
 
         ctl = (
             P(c.controller["kp"])

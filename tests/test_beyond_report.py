@@ -17,8 +17,12 @@ from typing import Any
 import pandas as pd
 import pytest
 
-from hbench import cli, config, report, report_beyond, results
-from hbench.schema import TIDY_COLUMNS
+from hbench import cli
+from hbench.bench.schema import TIDY_COLUMNS
+from hbench.report import beyond as report_beyond
+from hbench.report import build as report
+from hbench.sweep import config
+from hbench.tables import results
 from tests.test_report import parse
 
 pytestmark = pytest.mark.filterwarnings(f"ignore:{config.SCHEMA_NOTE}:UserWarning")
@@ -384,7 +388,7 @@ def test_delay_sweep_report_has_the_delay_subsection(delay_sweep: Path) -> None:
 
 
 def _md_to_csv(path: Path) -> str:
-    """A Markdown table written by :func:`hbench.results.to_markdown` as CSV text."""
+    """A Markdown table written by :func:`hbench.tables.results.to_markdown` as CSV text."""
     lines = [ln for ln in path.read_text().splitlines() if ln and not ln.startswith("|---")]
     return "\n".join(",".join(c.strip() for c in ln.strip("|").split("|")) for ln in lines)
 
@@ -397,7 +401,7 @@ def test_level_key_and_labels() -> None:
 
 
 def test_presets_validate_to_their_job_counts() -> None:
-    from hbench.sweep import validate
+    from hbench.sweep.app import validate
 
     assert validate(["experiment=delay_beyond_a3"], multirun=True) == 15 * 3  # delays x SNRs
     assert validate(["experiment=beyond_paper"], multirun=True) == 4  # noise levels

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from hbench import cli
-from hbench.readers import read_record
+from hbench.io.readers import read_record
 
 RunCli = Callable[[list[str]], tuple[int, str, str]]
 

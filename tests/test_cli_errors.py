@@ -19,9 +19,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hbench import cli, scenarios
+from hbench import cli
 from hbench.errors import InputError
-from hbench.readers import read_record
+from hbench.io.readers import read_record
+from hbench.sim import scenarios
 
 RunCli = Callable[[list[str]], tuple[int, str, str]]
 
@@ -140,12 +141,12 @@ def test_simulate_unwritable_suffix_is_refused_before_simulating(
     run_cli: RunCli, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """``--out x.txt`` is refused before any simulation work (it was refused only after it)."""
-    import hbench.simulate
+    import hbench.sim.simulate
 
     def no_simulation(*args: object, **kwargs: object) -> None:
         raise AssertionError("simulate() ran before the output suffix was checked")
 
-    monkeypatch.setattr(hbench.simulate, "simulate", no_simulation)
+    monkeypatch.setattr(hbench.sim.simulate, "simulate", no_simulation)
     status, stdout, stderr = run_cli(["simulate", "--out", str(tmp_path / "x.txt")])
     assert status == 2
     assert stdout == ""
@@ -258,7 +259,7 @@ def test_simulate_integer_valued_floats_are_taken(
 def test_reproduce_bad_set_value_before_any_work(
     run_cli: RunCli, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, setting: str
 ) -> None:
-    from hbench import results
+    from hbench.tables import results
 
     def refuse(*args: object, **kwargs: object) -> None:
         raise AssertionError("the reproduction started")

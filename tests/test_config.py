@@ -11,10 +11,11 @@ from hydra import compose, initialize_config_dir
 from hydra.errors import ConfigCompositionException
 from omegaconf import OmegaConf
 
-from hbench import config, scenarios, seeding
 from hbench.plugins import registry
+from hbench.sim import scenarios, seeding
+from hbench.sweep import config
 
-# pytest resets warning filters per test; hbench.config silences this Hydra note for users
+# pytest resets warning filters per test; hbench.sweep.config silences this Hydra note for users
 pytestmark = pytest.mark.filterwarnings(f"ignore:{config.SCHEMA_NOTE}:UserWarning")
 
 CONF = config.CONF_DIR

@@ -1,6 +1,6 @@
 """Conformance suite: every registered identifier, built-in or third-party, parametrised.
 
-The checks live in :mod:`hbench.conformance` (installed, so that a plugin's own tests run them
+The checks live in :mod:`hbench.bench.conformance` (installed, so that a plugin's own tests run them
 too: ``check_method("my-method")``); here every check runs on every registered method, one test
 per (check, method). What they check and their tolerances: see that module.
 """
@@ -12,13 +12,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from hbench import conformance
-from hbench.identifiers import Estimate, Identifier
+from hbench.bench import conformance
+from hbench.ident.identifiers import Estimate, Identifier
 from hbench.plugins import registry
-from hbench.records import Record
+from hbench.sim.records import Record
 from tests.helpers import paper_spec, sim
 
-#: The checks this suite held before they moved to hbench.conformance: none may go missing.
+#: The checks this suite held before they moved to hbench.bench.conformance: none may go missing.
 CHECKS_BEFORE = {
     "estimate_shapes",
     "inner_signal_aligned_with_x",

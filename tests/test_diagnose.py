@@ -12,9 +12,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from hbench import nonlinearities as nl
 from hbench.diagnose import classes, core, generator, nominal, stats
 from hbench.diagnose.validate import CONTRACT_EFFECTS
+from hbench.model import nonlinearities as nl
 from hbench.plugins import registry
 
 RunCli = Callable[[list[str]], tuple[int, str, str]]
@@ -106,9 +106,9 @@ def test_paper_example_is_not_a_drift_or_a_change(cls: str, seed: int) -> None:
     records (3.3 and 2.4 against 1: a scan without the start-up transient, then the slow
     noise's own drops above the calibrated 25 %) and drift on the second (10.5 against 8: the
     slow noise alone). Deterministic (fixed seeds, the null's own seed): an exact verdict."""
-    from hbench import scenarios
     from hbench.diagnose.validate import diagnose
-    from hbench.simulate import simulate
+    from hbench.sim import scenarios
+    from hbench.sim.simulate import simulate
 
     spec = {**scenarios.PAPER_SECTION6, "nonlinearity": {"name": cls}}
     rec, _ = simulate(scenarios.build(spec), 1, np.random.default_rng(seed))
@@ -123,11 +123,11 @@ def test_paper_example_is_not_a_drift_or_a_change(cls: str, seed: int) -> None:
 
 def test_switched_loop_without_a_switch_is_the_simulation() -> None:
     """The generator's switched loop (its time-varying records) is the closed loop of
-    :func:`hbench.simulate.simulate` when the plant never changes, noise level included (the
+    :func:`hbench.sim.simulate.simulate` when the plant never changes, noise level included (the
     paper's scenario sets it by ``sigma2``). Tolerance 1e-9 of the output's range: the same
     draws, a Python loop against the compiled one (rounding)."""
-    from hbench import scenarios
-    from hbench.simulate import simulate
+    from hbench.sim import scenarios
+    from hbench.sim.simulate import simulate
 
     sc = scenarios.build(scenarios.PAPER_SECTION6)
     ref, _ = simulate(sc, 1, np.random.default_rng(7))
@@ -146,8 +146,8 @@ def test_a_gain_change_on_the_paper_loop_is_still_found() -> None:
     change visible: the plant's gain doubled at 35 % of the paper's stiction loop (seed 900;
     found on 9 of 12 such records, seeds 900-902, docs/experiments/noise-model-null.md).
     Deterministic: an exact verdict."""
-    from hbench import scenarios
     from hbench.diagnose.validate import diagnose
+    from hbench.sim import scenarios
 
     sc = scenarios.build({**scenarios.PAPER_SECTION6, "nonlinearity": {"name": "stiction"}})
     plant2 = generator._changed_plant(sc.discrete_plant, 2.0, 1.0)
@@ -159,8 +159,8 @@ def test_a_gain_change_on_the_paper_loop_is_still_found() -> None:
 
 
 def _paper_context(seed: int = 100) -> tuple[nominal.Context, nominal.Nominal]:
-    from hbench import scenarios
-    from hbench.simulate import simulate
+    from hbench.sim import scenarios
+    from hbench.sim.simulate import simulate
 
     rec, _ = simulate(scenarios.build(scenarios.PAPER_SECTION6), 1, np.random.default_rng(seed))
     with core.transient(True), np.errstate(all="ignore"):

@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from hbench import scenarios
 from hbench.diagnose import effects
 from hbench.diagnose import validate as va
 from hbench.errors import InputError
-from hbench.readers import write_record
-from hbench.simulate import simulate
+from hbench.io.readers import write_record
+from hbench.sim import scenarios
+from hbench.sim.simulate import simulate
 
 RunCli = Callable[[list[str]], tuple[int, str, str]]
 

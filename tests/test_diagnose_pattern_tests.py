@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hbench import nonlinearities as nl
 from hbench.diagnose import stats
+from hbench.model import nonlinearities as nl
 
 
 def _flow_loop(sticky: bool, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:

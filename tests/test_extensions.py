@@ -138,7 +138,7 @@ def test_coloured_noise_lsm_consistent_under_white_arx_noise():
 
 
 def _paired_fitness(sigma2: float, runs: int = 50, seed: int = 31):
-    from hbench.metrics import fitness
+    from hbench.bench.metrics import fitness
 
     record, truth = sim(runs=runs, seed=seed, noise__sigma2=sigma2)
     out = {}
@@ -174,7 +174,7 @@ def test_delay_beyond_a3_is_estimated(nonlinearity):
     10 runs per delay at SNR 5, fixed seeds: the total delay tau + m p is right in >= 90 % of the
     150 runs (measured 99-100 %; the misses are structure-selection errors of tau, not of m).
     """
-    from hbench.identifiers import IdentifyOptions
+    from hbench.ident.identifiers import IdentifyOptions
 
     hits = []
     for d in range(15):
@@ -188,8 +188,8 @@ def test_delay_beyond_a3_is_estimated(nonlinearity):
 
 def test_delay_estimate_realigns_the_inner_signal():
     """Noise-free, delay 3 + 2 p: the re-aligned U fits the truth as if A3 had been given."""
-    from hbench.identifiers import IdentifyOptions
-    from hbench.metrics import fitness
+    from hbench.bench.metrics import fitness
+    from hbench.ident.identifiers import IdentifyOptions
 
     record, truth = sim(runs=2, seed=5, noise__sigma2=0.0, plant__delay=13)
     est = run_method("wang-delay", record, options=IdentifyOptions())

@@ -12,8 +12,8 @@ import pandas as pd
 import pytest
 from scipy import signal
 
-from hbench import polyphase as pp
-from hbench.identifiers import IdentifyOptions, identify
+from hbench.ident import polyphase as pp
+from hbench.ident.identifiers import IdentifyOptions, identify
 from hbench.plugins import registry
 from tests.helpers import sim
 
@@ -138,7 +138,7 @@ def test_methods_share_one_structure_selection(monkeypatch):
     """wang-iv after wang-lsm on one record reuses the selection (one table computed, not two)
     and gives the same estimate as alone; bai-fu (OLS selection) and a selection by a closure
     compute their own."""
-    from hbench import identifiers
+    from hbench.ident import identifiers
 
     calls = []
     original = identifiers.select_structure
@@ -175,8 +175,8 @@ def test_record_cache_is_not_shared_with_other_data(noisy):
 
 def test_run_cell_rows_do_not_depend_on_worker_processes():
     """jobs=2 (forked workers, chunks of 3) gives exactly the rows of one process."""
-    from hbench import scenarios
-    from hbench.runner import methods_from_names, run_cell
+    from hbench.bench.runner import methods_from_names, run_cell
+    from hbench.sim import scenarios
     from tests.helpers import paper_spec
 
     sc = scenarios.build(paper_spec(duration=60.0))
@@ -200,8 +200,8 @@ def test_a_runs_numbers_do_not_depend_on_chunks_or_workers():
     two workers, give bit-identical rows (the reproducibility rule)."""
     import pandas as pd
 
-    from hbench import scenarios
-    from hbench.runner import methods_from_names, run_cell
+    from hbench.bench.runner import methods_from_names, run_cell
+    from hbench.sim import scenarios
     from tests.helpers import paper_spec
 
     sc = scenarios.build(paper_spec(duration=60.0))
@@ -234,7 +234,7 @@ def test_a_runs_numbers_do_not_depend_on_chunks_or_workers():
     ],
 )
 def test_chunks_cover_the_runs_once_and_balance_the_workers(runs, chunk, jobs, sizes):
-    from hbench.runner import _pieces
+    from hbench.bench.runner import _pieces
 
     pieces = _pieces(runs, chunk, jobs)
     assert [n for _, n in pieces] == sizes
@@ -253,7 +253,7 @@ def test_a_non_finite_run_stays_in_its_run():
 
 def test_short_records_and_list_options_give_estimates_not_exceptions():
     """A record too short for the regressions: every blind method says so in ``reason``."""
-    from hbench.records import Record
+    from hbench.sim.records import Record
 
     record, _ = sim(runs=2, seed=1, noise__sigma2=1e-3)
     short = Record(y=record.y[:, :10], x=record.x[:, :2], r=record.r[:, :2], p=5, h=record.h)
@@ -274,7 +274,8 @@ def test_a_worker_failure_reaches_the_parent(monkeypatch):
     """An exception that cannot be unpickled must not hang the pool: it comes back as text."""
     import os
 
-    from hbench import runner, scenarios
+    from hbench.bench import runner
+    from hbench.sim import scenarios
     from tests.helpers import paper_spec
 
     parent, run_chunk = os.getpid(), runner._run_chunk
@@ -294,7 +295,7 @@ def test_a_worker_failure_reaches_the_parent(monkeypatch):
 
 
 def test_tidy_blocks_assemble_into_the_frame_pandas_builds_from_object_arrays():
-    from hbench import tidy
+    from hbench.bench import tidy
 
     rng = np.random.default_rng(3)
     ids = {
@@ -335,7 +336,7 @@ def test_tidy_blocks_assemble_into_the_frame_pandas_builds_from_object_arrays():
 
 
 def test_fitnesses_equal_fitness_one_scaling_at_a_time():
-    from hbench.metrics import SCALINGS, fitness, fitnesses
+    from hbench.bench.metrics import SCALINGS, fitness, fitnesses
 
     rng = np.random.default_rng(8)
     U = rng.standard_normal((6, 40))
@@ -363,7 +364,7 @@ def test_period_block_view_equals_the_gather(shift, width, t_min):
 
 
 def test_mean_square_equals_nanmean():
-    from hbench.identifiers import _mean_square
+    from hbench.ident.identifiers import _mean_square
 
     d = np.random.default_rng(2).standard_normal((4, 2501))
     d[:, 0] = np.nan
@@ -411,7 +412,7 @@ def test_validity_patterns_of_many_phases(p):
 
 
 def test_tidy_text_keeps_the_objects_it_was_given():
-    from hbench import tidy
+    from hbench.bench import tidy
 
     t = tidy.Text.of([None, "", 1, 1.0, True, None, "x"])
     assert [t.labels[c] for c in t.codes] == [None, "", 1, 1.0, True, None, "x"]
@@ -454,7 +455,7 @@ def test_ols_and_lsm_share_one_least_squares_solution(noisy):
 def test_a_group_of_every_run_reads_the_record_without_copying_it(monkeypatch):
     """``_runs`` gives a read-only view when the group is the whole batch (same values, same
     layout), a copy otherwise; the estimates are those computed from copies."""
-    from hbench import identifiers
+    from hbench.ident import identifiers
 
     a = np.arange(12.0).reshape(4, 3)
     every = identifiers._runs(a, np.arange(4))
@@ -534,7 +535,7 @@ def test_simo_periods_are_those_of_the_simo_system(N, p, shift, t_min):
 def test_cyclic_blocks_from_tables_are_the_computed_ones(p: int) -> None:
     """The selection reads each shift's cyclic block and its last shift from tables built by
     ``_blocks`` and ``_last_of_block`` (p <= 12; p = 13 computes them): the same values."""
-    from hbench.identifiers import _blocks, _last_of_block, _own_blocks
+    from hbench.ident.identifiers import _blocks, _last_of_block, _own_blocks
 
     rng = np.random.default_rng(p)
     q = rng.random((40, 3, p, p)) < rng.random((40, 3, p, 1))
@@ -548,7 +549,7 @@ def test_cyclic_blocks_from_tables_are_the_computed_ones(p: int) -> None:
 
 
 def test_first_valid_scans_from_the_start_as_a_whole_scan_would() -> None:
-    from hbench import polyphase as pp
+    from hbench.ident import polyphase as pp
 
     rng = np.random.default_rng(3)
     for _ in range(500):
@@ -596,7 +597,7 @@ def _gram_stack(rng: np.random.Generator, count: int, n: int, rows: int = 40) ->
 def test_cholesky_inverse_is_the_pseudo_inverse_of_well_conditioned_matrices(n: int) -> None:
     """Tolerance: both are backward stable, so they agree to ~cond * eps (cond here < 1e6,
     checked; 1e-9 relative to the inverse's largest entry)."""
-    from hbench.ordered import cholesky_inverse
+    from hbench.numerics.ordered import cholesky_inverse
 
     A = _gram_stack(np.random.default_rng(n), 300, n)
     X, ok = cholesky_inverse(A)
@@ -614,7 +615,7 @@ def test_cholesky_inverse_is_the_pseudo_inverse_of_well_conditioned_matrices(n: 
 
 def test_empty_matrices_invert_as_numpys_pinv() -> None:
     """Order 0 (review): the empty inverses, as ``np.linalg.pinv`` gives them."""
-    from hbench.ordered import cholesky_inverse
+    from hbench.numerics.ordered import cholesky_inverse
 
     A = np.empty((3, 0, 0))
     X, ok = cholesky_inverse(A)
@@ -626,7 +627,7 @@ def test_singular_and_bad_matrices_go_to_the_pseudo_inverse() -> None:
     """Singular (an order above the true one on noise-free data), ill-conditioned beyond the
     bound, indefinite and non-finite matrices are not accepted; ``_pinv_sym`` gives numpy's
     pseudo-inverse for them, bit for bit, and the inverse for the others."""
-    from hbench.ordered import cholesky_inverse
+    from hbench.numerics.ordered import cholesky_inverse
 
     rng = np.random.default_rng(3)
     A = _gram_stack(rng, 6, 3)

@@ -27,13 +27,14 @@ import pandas as pd
 import pytest
 from omegaconf import OmegaConf
 
-from hbench import atomic, config
+from hbench.bench.runner import methods_from_names, run_cell
 from hbench.errors import InputError, OutputError
-from hbench.identifiers import NON_FINITE, Identifier
+from hbench.ident.identifiers import NON_FINITE, Identifier
 from hbench.plugins import registry
-from hbench.runner import methods_from_names, run_cell
-from hbench.scenarios import build
-from hbench.sweep import DONE, ROWS
+from hbench.sim.scenarios import build
+from hbench.sweep import config
+from hbench.sweep.app import DONE, ROWS
+from hbench.system import atomic
 from tests.helpers import paper_spec, registered_methods
 
 pytestmark = pytest.mark.filterwarnings(f"ignore:{config.SCHEMA_NOTE}:UserWarning")
@@ -70,7 +71,7 @@ class MutatesShared(Identifier):
     name = "test-mutates-shared"
 
     def identify(self, record: Any, options: Any, truth: Any = None) -> Any:
-        from hbench.identifiers import largest_order, shared_moments
+        from hbench.ident.identifiers import largest_order, shared_moments
 
         dy, _ = shared_moments(record.y, record.p, largest_order(options), record.cache)
         dy *= 0.0
@@ -184,7 +185,7 @@ def test_a_failed_cell_is_computed_again_on_resume(
 ) -> None:
     """A cell that fails as a whole (here MemoryError) is stored with its failed rows but is not
     done: resuming computes it again."""
-    from hbench import runner
+    from hbench.bench import runner
 
     real = runner.run_cell
     calls = []
@@ -250,7 +251,7 @@ def test_truncated_job_rows_are_named_and_computed_again(
 
 def test_an_unreadable_job_fails_the_sweeps_aggregation(run_cli: RunCli, tmp_path: Path) -> None:
     """Inside Hydra (the callback), too: exit 1 and one line, never a warning and status 0."""
-    from hbench.callbacks import AggregateTables
+    from hbench.sweep.callbacks import AggregateTables
 
     status, _, err = sweep(run_cli, tmp_path, "noise.snr=5", "method=wang-lsm", *SMALL)
     assert status == 0, err
@@ -338,7 +339,7 @@ def test_infinite_parameters_are_a_failed_run() -> None:
     a1 = rows[rows["quantity"] == "a1"].set_index("run")
     assert a1.loc[0, "status"] == "failed" and a1.loc[0, "error"] == NON_FINITE
     assert (a1.loc[1:, "status"] == "ok").all()
-    from hbench.results import aggregate
+    from hbench.tables.results import aggregate
 
     _, bias = aggregate(rows)
     assert np.isfinite(bias["mean"]).all()
@@ -499,7 +500,7 @@ def test_huge_sizes_are_refused_before_work(
 def test_the_memory_budget_is_the_users(
     run_cli: RunCli, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from hbench import limits
+    from hbench.system import limits
 
     monkeypatch.setenv(limits.BUDGET_ENV, "1M")
     status, _, err = run_cli(["sweep", "runs=100", f"out={tmp_path}/s"])
@@ -553,7 +554,7 @@ def test_an_output_under_proc_is_refused_before_work(run_cli: RunCli, record: Pa
 
 
 def test_a_truncated_plant_log_names_the_columns_it_needs(tmp_path: Path) -> None:
-    from hbench.readers import read_record
+    from hbench.io.readers import read_record
 
     src = sorted((REPO.parent / "shared/data/stictiongpt/stiction").glob("*.txt"))
     if not src:
@@ -616,7 +617,7 @@ def frame(record: Path) -> pd.DataFrame:
 
 
 def test_a_datetime_t_is_read_in_seconds(frame: pd.DataFrame, tmp_path: Path) -> None:
-    from hbench.readers import read_record
+    from hbench.io.readers import read_record
 
     base = read_record_frame(frame, tmp_path / "plain.parquet")
     stamped = frame.assign(
@@ -630,7 +631,7 @@ def test_a_datetime_t_is_read_in_seconds(frame: pd.DataFrame, tmp_path: Path) ->
 
 
 def test_a_unix_epoch_t_is_uniform(frame: pd.DataFrame, tmp_path: Path) -> None:
-    from hbench.readers import read_record
+    from hbench.io.readers import read_record
 
     base = read_record_frame(frame, tmp_path / "plain.csv")
     epoch = frame.assign(t=1.7e9 + frame["t"])
@@ -646,7 +647,7 @@ def test_a_unix_epoch_t_is_uniform(frame: pd.DataFrame, tmp_path: Path) -> None:
 
 
 def read_record_frame(frame: pd.DataFrame, path: Path) -> Any:
-    from hbench.readers import read_record
+    from hbench.io.readers import read_record
 
     if path.suffix == ".parquet":
         frame.to_parquet(path, index=False)

@@ -1,4 +1,4 @@
-"""hbench.hydra_adapter: the one private hook into Hydra, for the versions it supports."""
+"""hbench.sweep.hydra_adapter: the one private hook into Hydra, for the versions it supports."""
 
 from __future__ import annotations
 
@@ -7,12 +7,12 @@ import inspect
 import hydra
 import pytest
 
-from hbench import hydra_adapter
+from hbench.sweep import hydra_adapter
 
 
 def test_the_installed_hydra_is_a_supported_version():
     """Supported: Hydra 1.3.x (``hydra-core==1.3.*`` in pyproject.toml). A new series needs
-    :func:`hbench.hydra_adapter.report_errors` checked against its internals first."""
+    :func:`hbench.sweep.hydra_adapter.report_errors` checked against its internals first."""
     assert hydra_adapter.SUPPORTED == ("1.3",)
     assert hydra.__version__.rsplit(".", 1)[0] in hydra_adapter.SUPPORTED, hydra.__version__
 
@@ -56,7 +56,7 @@ def test_no_other_module_reaches_into_hydras_internals():
 
 @pytest.mark.parametrize("private", ["._processes", "._actions", "_run_hydra", "hydra._internal"])
 def test_private_attributes_of_libraries_are_not_used(private):
-    """Hydra's internals only in ``hbench/hydra_adapter.py``; the executor's workers and the
+    """Hydra's internals only in ``hbench/sweep/hydra_adapter.py``; the executor's workers and the
     parser's actions through their public interfaces."""
     from pathlib import Path
 

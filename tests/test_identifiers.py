@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hbench.identifiers import IdentifyOptions, check_a4
-from hbench.metrics import fitness
+from hbench.bench.metrics import fitness
+from hbench.ident.identifiers import IdentifyOptions, check_a4
 from hbench.plugins import registry
 from tests.helpers import TRUE_STRUCTURE, run_method, sim
 

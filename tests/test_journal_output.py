@@ -13,10 +13,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from hbench import figures, report, scenarios
+from hbench.bench.runner import methods_from_names, run_cell
 from hbench.errors import InputError
-from hbench.runner import methods_from_names, run_cell
-from hbench.style import COLUMN_WIDTH, PAGE_WIDTH, STYLE_FILE, method_style
+from hbench.report import build as report
+from hbench.report import figures
+from hbench.report.style import COLUMN_WIDTH, PAGE_WIDTH, STYLE_FILE, method_style
+from hbench.sim import scenarios
 
 METHODS = ("wang-lsm", "wang-iv", "sun-liu-sano", "oracle")
 

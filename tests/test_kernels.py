@@ -1,4 +1,4 @@
-"""The compiled kernels (hbench/_kernels.c) give the numpy path's numbers exactly.
+"""The compiled kernels (hbench/numerics/_kernels.c) give the numpy path's numbers exactly.
 
 Exact equality is the claim, not a tolerance: each kernel performs the numpy path's
 floating-point operations in the same order, without fused multiply-adds (compared as floats:
@@ -17,13 +17,16 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from hbench import kernels, metrics, noise, scenarios
-from hbench import nonlinearities as nl
-from hbench import polyphase as pp
+from hbench.bench import metrics
+from hbench.bench.runner import methods_from_names, run_cell
 from hbench.errors import InputError
-from hbench.identifiers import IdentifyOptions, identify
-from hbench.runner import methods_from_names, run_cell
-from hbench.simulate import simulate
+from hbench.ident import polyphase as pp
+from hbench.ident.identifiers import IdentifyOptions, identify
+from hbench.model import noise
+from hbench.model import nonlinearities as nl
+from hbench.numerics import kernels
+from hbench.sim import scenarios
+from hbench.sim.simulate import simulate
 
 BUILT = kernels.backend() == "c"
 needs_build = pytest.mark.skipif(not BUILT, reason=f"kernels not in use: {kernels.status()}")
@@ -283,7 +286,7 @@ def test_inner_signal_ls_is_the_numpy_path(p: int, M: int) -> None:
 
 @needs_build
 def test_inner_signal_ls_reads_w_in_place_as_the_blocks() -> None:
-    """:func:`hbench.polyphase.simo_system` leaves ``w`` in place: the kernel reads it where a
+    """:func:`hbench.ident.polyphase.simo_system` leaves ``w`` in place: the kernel reads it where a
     sample exists (never past the record's end, nor before ``t_min``), the same numbers as the
     blocks ``W``; entries of ``W`` marked missing are ignored by both paths, whatever they hold."""
     sys, h0, h1 = _eq27_cases(5, 120)
@@ -443,7 +446,7 @@ def test_a_diverging_loop_overflows_quietly_on_both_paths() -> None:
     """The stability check of :func:`simulate` is bypassed: both paths run a loop that blows
     up, without a numpy warning (the kernel cannot warn), and return the same non-finite
     output, which :func:`simulate` turns into an UnstableError."""
-    from hbench.simulate import LiftedPlant, _run_loop
+    from hbench.sim.simulate import LiftedPlant, _run_loop
 
     sc = _scenario(controller={"name": "pi", "kp": 40.0, "ki": 5.0})
     lp = LiftedPlant.from_plant(sc.discrete_plant, sc.p)

@@ -16,18 +16,18 @@ from typing import Any
 import numpy as np
 import pytest
 
+from hbench.bench.runner import methods_from_names, run_cell
 from hbench.errors import MethodError, describe
-from hbench.identifiers import (
+from hbench.ident.identifiers import (
     NO_ESTIMATE,
     Identifier,
     IdentifyOptions,
     check_estimate,
     identify,
 )
+from hbench.io.readers import write_record
 from hbench.plugins import registry
-from hbench.readers import write_record
-from hbench.runner import methods_from_names, run_cell
-from hbench.scenarios import build
+from hbench.sim.scenarios import build
 from tests.helpers import paper_spec, registered_methods, sim
 
 RunCli = Callable[[Sequence[str]], tuple[int, str, str]]
@@ -112,7 +112,7 @@ def test_a_malformed_estimate_fails_only_its_method() -> None:
     assert f"U of shape (4, {K - 3}), expected (4, {K})" in message
     none = rows[rows["method"] == "test-none"]
     assert (none["status"] == "failed").all()
-    assert "method 'test-none' returned NoneType, not an hbench.identifiers.Estimate" in set(
+    assert "method 'test-none' returned NoneType, not an hbench.ident.identifiers.Estimate" in set(
         none["error"]
     )
 
@@ -215,7 +215,7 @@ def test_a_refused_inverse_stays_ok_with_the_methods_reason() -> None:
     """bai-fu refusing the unstable direct inverse of a non-minimum-phase B returns no U but
     says why: the run stays ok (its parameters, orders and delay are estimates the bias and
     structure tables count), with the method's reason; only a silent empty U is a failure."""
-    from hbench.identifiers import REFUSALS
+    from hbench.ident.identifiers import REFUSALS
 
     spec = paper_spec(duration=120.0, plant__name="nmp", plant__delay=1, reference__band=[0.0, 1.0])
     baifu = registry().get("identifiers", "bai-fu")

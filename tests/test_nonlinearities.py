@@ -1,4 +1,4 @@
-"""Tests of the actuator models in :mod:`hbench.nonlinearities`.
+"""Tests of the actuator models in :mod:`hbench.model.nonlinearities`.
 
 Tolerance: every comparison is *exact* (``assert_array_equal``). The hand-worked sequences use
 dyadic rationals (multiples of 1/8, 1/16 or 2**-10) for inputs and parameters, so every
@@ -19,7 +19,7 @@ import pytest
 from numpy.testing import assert_array_equal
 
 from hbench.errors import InputError
-from hbench.nonlinearities import (
+from hbench.model.nonlinearities import (
     BUILTIN,
     Backlash,
     Deadband,

@@ -1,4 +1,4 @@
-"""Tests of :mod:`hbench.plants`: the exact ZOH discretisation with (fractional) delay.
+"""Tests of :mod:`hbench.model.plants`: the exact ZOH discretisation with (fractional) delay.
 
 Independent references: the continuous step response comes from a partial-fraction expansion
 (``scipy.signal.residue``) evaluated in closed form, and an arbitrary ZOH input goes through
@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from hbench import plants
 from hbench.errors import InputError, UnstableError
-from hbench.plants import ContinuousPlant, DiscretePlant
+from hbench.model import plants
+from hbench.model.plants import ContinuousPlant, DiscretePlant
 
 H = 0.12  # the paper's fast period: T = 0.6 s, p = 5
 

@@ -18,11 +18,12 @@ from types import ModuleType
 import numpy as np
 import pytest
 
-from hbench import conformance, hookspecs, scenarios
+from hbench import hookspecs
+from hbench.bench import conformance
+from hbench.bench.metrics import fitness
 from hbench.errors import InputError, PluginNotFoundError
 from hbench.hookspecs import hookimpl
-from hbench.metrics import fitness
-from hbench.nonlinearities import Backlash
+from hbench.model.nonlinearities import Backlash
 from hbench.plugins import (
     KINDS,
     Registry,
@@ -32,7 +33,8 @@ from hbench.plugins import (
     registry,
     unregister_module,
 )
-from hbench.simulate import Scenario, simulate
+from hbench.sim import scenarios
+from hbench.sim.simulate import Scenario, simulate
 from tests.helpers import run_method, sim
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -343,7 +345,7 @@ def test_a_plugin_that_fails_to_import_is_skipped_with_a_warning(
 
 
 def test_provenance_names_the_plugins_packages() -> None:
-    from hbench import results
+    from hbench.tables import results
 
     versions = results.provenance()["versions"]
     for _plugin, dist in get_manager().list_plugin_distinfo():

@@ -12,7 +12,7 @@ import pytest
 
 from hbench.cli import main
 from hbench.errors import RecordError
-from hbench.readers import (
+from hbench.io.readers import (
     READERS,
     PlantLogReader,
     TableReader,
@@ -20,7 +20,7 @@ from hbench.readers import (
     record_from_fast,
     write_record,
 )
-from hbench.records import Record
+from hbench.sim.records import Record
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "stictiongpt"
 

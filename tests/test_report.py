@@ -11,9 +11,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from hbench import report, results, scenarios
-from hbench.reproduce import save_examples
-from hbench.runner import methods_from_names, run_cell
+from hbench.bench.runner import methods_from_names, run_cell
+from hbench.paper.reproduce import save_examples
+from hbench.report import build as report
+from hbench.sim import scenarios
+from hbench.tables import results
 
 METHODS = ("wang-lsm", "sun-liu-sano", "oracle")
 LEVELS = (1e-4, 1e-3)

@@ -12,9 +12,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from hbench import report, scenarios
-from hbench.identifiers import Identifier
-from hbench.runner import methods_from_names, run_cell
+from hbench.bench.runner import methods_from_names, run_cell
+from hbench.ident.identifiers import Identifier
+from hbench.report import build as report
+from hbench.sim import scenarios
 
 #: A message with every character LaTeX and Markdown tables treat specially.
 NASTY = r"singular {matrix} & 50% #1 $x^2$ ~ a|b \ end"

@@ -12,8 +12,8 @@ import pandas as pd
 import pytest
 
 from hbench import cli
-from hbench import reproduce as rp
-from hbench.runner import TIDY_COLUMNS
+from hbench.bench.runner import TIDY_COLUMNS
+from hbench.paper import reproduce as rp
 from tests.helpers import BIAS_COLUMNS, FITNESS_COLUMNS, HAS_PDFLATEX, NO_PDFLATEX, compile_tex
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -39,7 +39,7 @@ N_CELLS = {1: 50, 2: 5, 4: 42, 5: 24}
 def test_package_data_is_declared():
     conf = tomllib.loads((ROOT / "pyproject.toml").read_text())
     assert "data/*" in conf["tool"]["setuptools"]["package-data"]["hbench"]
-    assert (ROOT / "hbench" / "data" / "paper_tables.json").is_file()
+    assert (ROOT / "hbench" / "paper" / "paper_tables.json").is_file()
 
 
 def test_paper_cells_typed_with_the_notes_corrections():

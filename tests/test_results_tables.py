@@ -21,8 +21,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from hbench import report, results
-from hbench.schema import TIDY_COLUMNS
+from hbench.bench.schema import TIDY_COLUMNS
+from hbench.report import build as report
+from hbench.tables import results
 from tests.helpers import HAS_PDFLATEX, NO_PDFLATEX, compile_tex
 
 #: Target SNRs in an order where a text sort (2, 20, 5) and the old level sort (20, 5, 2) differ
@@ -83,14 +84,14 @@ def level_rows(snrs: tuple[float, ...] = SNRS, sigma2s: tuple[float, ...] = ()) 
 
 
 def read_md(path: Path) -> pd.DataFrame:
-    """A Markdown table written by :func:`hbench.results.to_markdown` (cells as text)."""
+    """A Markdown table written by :func:`hbench.tables.results.to_markdown` (cells as text)."""
     lines = [ln for ln in path.read_text().splitlines() if ln.startswith("|")]
     cells = [[c.strip() for c in ln.strip().strip("|").split("|")] for ln in lines]
     return pd.DataFrame(cells[2:], columns=cells[0])
 
 
 def read_tex(path: Path) -> pd.DataFrame:
-    """The tabular of a table written by :func:`hbench.results.to_latex` (cells as text)."""
+    """The tabular of a table written by :func:`hbench.tables.results.to_latex` (cells as text)."""
     body = path.read_text().split(r"\toprule", 1)[1].split(r"\bottomrule", 1)[0]
     lines = [ln.strip().removesuffix(r"\\").strip() for ln in body.splitlines()]
     cells = [[c.strip() for c in ln.split(" & ")] for ln in lines if ln and ln != r"\midrule"]

@@ -1,4 +1,4 @@
-"""hbench.runtime: the process settings under which run_cell computes."""
+"""hbench.system.runtime: the process settings under which run_cell computes."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import sys
 import pytest
 from threadpoolctl import threadpool_info
 
-from hbench import runtime
+from hbench.system import runtime
 
 
 def _blas_threads() -> list[int]:
@@ -39,7 +39,8 @@ def test_the_allocator_is_tuned_once_and_only_on_glibc():
 def _allocator_tuned_after(code: str) -> bool:
     """Whether ``code``, run in a fresh interpreter, leaves the allocator tuned."""
     probe = (
-        f"{code}\nfrom hbench import runtime\nprint(runtime.tune_allocator.cache_info().currsize)"
+        f"{code}\nfrom hbench.system import runtime\n"
+        "print(runtime.tune_allocator.cache_info().currsize)"
     )
     out = subprocess.run(
         [sys.executable, "-c", probe], capture_output=True, text=True, check=True, timeout=120
@@ -49,8 +50,8 @@ def _allocator_tuned_after(code: str) -> bool:
 
 def test_run_cell_leaves_the_process_allocator_alone():
     code = (
-        "from hbench import scenarios\n"
-        "from hbench.runner import methods_from_names, run_cell\n"
+        "from hbench.sim import scenarios\n"
+        "from hbench.bench.runner import methods_from_names, run_cell\n"
         "sc = scenarios.build(scenarios.PAPER_SECTION6)\n"
         "run_cell(sc, methods_from_names(['wang-lsm']), 2, 0)"
     )

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hbench import seeding
+from hbench.sim import seeding
 
 
 def _numpy_child(seq: np.random.SeedSequence, key: tuple[int, ...], bitgen=np.random.PCG64):
@@ -25,7 +25,9 @@ PARENTS = [
     np.random.SeedSequence(0),
     np.random.SeedSequence(2026),
     np.random.SeedSequence(2**64 + 12345),  # entropy of three 32-bit words
-    np.random.SeedSequence([2026, 1, 2**33, 4]),  # a cell seed's shape (hbench.seeding.cell_seed)
+    np.random.SeedSequence(
+        [2026, 1, 2**33, 4]
+    ),  # a cell seed's shape (hbench.sim.seeding.cell_seed)
     np.random.SeedSequence([1, 2, 3, 4, 5, 6, 7]),  # entropy longer than the pool
     np.random.SeedSequence(77, spawn_key=(3, 9)),  # a parent that is itself a child
     np.random.SeedSequence(5, pool_size=8),
@@ -86,8 +88,8 @@ def test_a_stream_is_a_parent_in_its_turn_and_pickles_as_its_seed_sequence() -> 
     made; it pickles with any protocol, as the SeedSequence it stands for."""
     import pickle
 
-    from hbench import scenarios
-    from hbench.simulate import simulate
+    from hbench.sim import scenarios
+    from hbench.sim.simulate import simulate
 
     seq = np.random.SeedSequence(2026)
     child = seeding.spawn_runs(np.random.Generator(np.random.PCG64(seq)), 2)[1]

@@ -1,4 +1,4 @@
-"""Tests of :mod:`hbench.simulate`: the closed loop with output fast-sampling (paper, Figure 1).
+"""Tests of :mod:`hbench.sim.simulate`: the closed loop with output fast-sampling (paper, Figure 1).
 
 Scenarios are the paper's Section 6 example (``scenarios.PAPER_SECTION6``) with overrides; most
 tests use short records (60-120 s) because the properties checked hold sample by sample.
@@ -15,8 +15,8 @@ import pytest
 from scipy import signal
 
 from hbench.errors import InputError, UnstableError
-from hbench.signals import PRBS, RBS, Steps
-from hbench.simulate import Scenario, ZeroOutputWarning, closed_loop_radius, simulate
+from hbench.model.signals import PRBS, RBS, Steps
+from hbench.sim.simulate import Scenario, ZeroOutputWarning, closed_loop_radius, simulate
 
 MakeScenario = Callable[..., Scenario]
 KP = 0.1  # the paper's P controller (PAPER_SECTION6)

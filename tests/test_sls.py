@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from hbench_sls import cross_relation_gram, cross_relation_numerator
 
-from hbench import polyphase as pp
+from hbench.ident import polyphase as pp
 from tests.helpers import TRUE_STRUCTURE, run_method, sim
 
 

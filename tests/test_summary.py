@@ -9,8 +9,8 @@ import pandas as pd
 import pytest
 from scipy import stats
 
-from hbench import headline, summary
-from hbench.schema import TIDY_COLUMNS
+from hbench.bench.schema import TIDY_COLUMNS
+from hbench.tables import headline, summary
 
 
 def fitness_rows(values: dict[str, np.ndarray], sigma2: float = 1e-3) -> pd.DataFrame:

@@ -21,12 +21,13 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from hbench import config, results
-from hbench.callbacks import aggregate_dir
 from hbench.errors import InputError
-from hbench.identifiers import Identifier
+from hbench.ident.identifiers import Identifier
 from hbench.plugins import registry
-from hbench.sweep import DONE, EXAMPLE, ROW_COLUMNS, ROWS, validate
+from hbench.sweep import config
+from hbench.sweep.app import DONE, EXAMPLE, ROW_COLUMNS, ROWS, validate
+from hbench.sweep.callbacks import aggregate_dir
+from hbench.tables import results
 from tests.helpers import BIAS_COLUMNS, FITNESS_COLUMNS, registered_methods
 
 pytestmark = pytest.mark.filterwarnings(f"ignore:{config.SCHEMA_NOTE}:UserWarning")
@@ -463,8 +464,8 @@ def test_worker_processes_kept_for_the_sweep_give_the_same_bits(
     run_cli: RunCli, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """Two cells with ``jobs=2`` under the basic launcher share the workers kept for the sweep
-    (:func:`hbench.workers.kept_workers`): the tables are those of ``jobs=1``."""
-    from hbench import workers
+    (:func:`hbench.bench.workers.kept_workers`): the tables are those of ``jobs=1``."""
+    from hbench.bench import workers
 
     ov = ("noise.snr=5,20", "method=wang-lsm", "seed=7", *SMALL, "chunk=2")
     status, _, err = sweep(run_cli, tmp_path / "one", *ov)

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import pandas as pd
 
-from hbench import figures
+from hbench.report import figures
 
 
 def test_time_figure_says_runs_share_their_batchs_time() -> None:

@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hbench import polyphase as pp
 from hbench.errors import InputError
+from hbench.ident import polyphase as pp
 from tests.helpers import TRUE_STRUCTURE, run_method, sim
 
 P, TAU, NB = 5, 3, 2

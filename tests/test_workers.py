@@ -1,4 +1,4 @@
-"""hbench.workers: worker processes forked per cell or kept for a scope.
+"""hbench.bench.workers: worker processes forked per cell or kept for a scope.
 
 The kept scope must give the rows of one process, reuse its workers between cells, never run a
 cell with code or settings the parent no longer has, never hang or leave processes behind when
@@ -24,7 +24,8 @@ from dataclasses import dataclass, field
 import pandas as pd
 import pytest
 
-from hbench import kernels, workers
+from hbench.bench import workers
+from hbench.numerics import kernels
 
 pytestmark = pytest.mark.skipif(
     "fork" not in __import__("multiprocessing").get_all_start_methods(),
@@ -246,7 +247,7 @@ def test_a_worker_killed_while_idle_does_not_hang_the_next_cell():
     """A kept ``multiprocessing.Pool`` would wait forever here (``concurrent.futures`` raises)."""
     body = """
         import os, signal, time, warnings
-        from hbench import workers
+        from hbench.bench import workers
         from tests.test_workers import PIECES, Work, whose
         work = Work(os.getpid())
         with workers.kept_workers():
@@ -287,7 +288,7 @@ def test_ctrl_c_ends_the_scope_at_once_and_leaves_no_worker():
     proc, kids = _start(
         """
         import os, threading, time
-        from hbench import workers
+        from hbench.bench import workers
         from tests.test_workers import PIECES, Work, slow
         with workers.kept_workers() as scope:
             def report():
@@ -317,7 +318,7 @@ def test_kept_workers_exit_when_their_parent_is_killed():
     proc, kids = _start(
         """
         import os, time
-        from hbench import workers
+        from hbench.bench import workers
         from tests.test_workers import PIECES, Work, whose
         with workers.kept_workers() as scope:
             list(workers.map_chunks(whose, Work(os.getpid()), PIECES, 2))
@@ -342,8 +343,8 @@ def test_kept_workers_exit_when_their_parent_is_killed():
 def test_run_cell_in_a_kept_scope_gives_the_rows_of_one_process():
     """Two different cells (other scenario, other methods) through the same kept workers,
     twice each: no fork after the first, every cell's worker chunks computed by them."""
-    from hbench import scenarios
-    from hbench.runner import methods_from_names, run_cell
+    from hbench.bench.runner import methods_from_names, run_cell
+    from hbench.sim import scenarios
     from tests.helpers import paper_spec
 
     key = ["method", "run", "quantity"]
@@ -411,7 +412,7 @@ def test_a_scripts_loop_variables_do_not_refork_kept_workers():
     loop variable between cells is not a code change."""
     body = """
         import os
-        from hbench import workers
+        from hbench.bench import workers
         from tests.test_workers import PIECES
 
         class Method:

@@ -54,8 +54,6 @@ from typing import Any
 import numpy as np
 from scipy import signal
 
-from hbench import scenarios
-from hbench.controllers import PI, P
 from hbench.diagnose.generator import (
     CLASSES,
     EFFECTS,
@@ -66,11 +64,13 @@ from hbench.diagnose.generator import (
     simulate_effect,
     write_truth,
 )
-from hbench.noise import ContinuousFilter
-from hbench.plants import BUILTIN as PLANTS
-from hbench.plants import ContinuousPlant
-from hbench.records import Record
-from hbench.simulate import Scenario, closed_loop_radius, simulate
+from hbench.model.controllers import PI, P
+from hbench.model.noise import ContinuousFilter
+from hbench.model.plants import BUILTIN as PLANTS
+from hbench.model.plants import ContinuousPlant
+from hbench.sim import scenarios
+from hbench.sim.records import Record
+from hbench.sim.simulate import Scenario, closed_loop_radius, simulate
 
 #: The plants of the benchmark (the paper's first).
 BENCH_PLANTS: tuple[str, ...] = ("paper", "first-order", "third-order", "nmp")

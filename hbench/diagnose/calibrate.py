@@ -274,7 +274,7 @@ def run_baselines(path: Any) -> tuple[dict[str, Any], str]:
     plant log, by name, and ``""``; no verdicts and the reason for a log the reader refuses."""
     from hbench.diagnose import baselines
     from hbench.errors import InputError
-    from hbench.readers import read_record
+    from hbench.io.readers import read_record
 
     try:
         rec = read_record(path)

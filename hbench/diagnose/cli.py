@@ -9,8 +9,8 @@ import warnings
 
 import numpy as np
 
-from hbench import atomic
 from hbench.errors import InputError
+from hbench.system import atomic
 
 #: The longest record diagnosed, in fast samples. The diagnosis holds ~6 KB per fast sample at
 #: its peak and its time grows with the length (200 000 samples: 1.3 GB, 17 s), so a longer
@@ -67,8 +67,8 @@ def run(args: argparse.Namespace) -> int:
     """
     from hbench.cli import check_output
     from hbench.diagnose.validate import diagnose, parse_criterion
+    from hbench.io.readers import read_record
     from hbench.plugins import registry
-    from hbench.readers import read_record
 
     to_stdout = args.json == "-"
     info = sys.stderr if to_stdout else sys.stdout  # the human text: never mixed into the JSON

@@ -4,7 +4,7 @@ output-error fits, the simulation of a Hammerstein model from the measured ``x``
 Conventions: one run at a time (``record.select([0])``); slow signals have shape ``(K,)``, fast
 ones ``(N,)`` with ``N = K p``; candidate batches put the candidate first, ``(C, K)``.
 
-The actuator maps here are the rules of :mod:`hbench.nonlinearities` written for a batch of
+The actuator maps here are the rules of :mod:`hbench.model.nonlinearities` written for a batch of
 *parameter* candidates (that module batches over runs with one parameter set), so a grid of
 candidates is one pass over time. ``tests/test_diagnose.py`` checks them against the
 library classes sample by sample.
@@ -53,7 +53,7 @@ def backlash_batch(x: np.ndarray, width: Any, g0: Any = 0.5) -> np.ndarray:
     """Play operator of total width ``width[c]`` for each candidate.
 
     ``u(k) = max(x(k) - w/2, min(x(k) + w/2, u(k-1)))`` with ``u(-1) = x(0) + (g0 - 1/2) w``
-    (``g0 = 1/2``: centred on the first input, :class:`hbench.nonlinearities.Backlash` with
+    (``g0 = 1/2``: centred on the first input, :class:`hbench.model.nonlinearities.Backlash` with
     ``u0=None``; ``g0`` in [0, 1] spans the positions the valve may have started at).
     """
     x = np.asarray(x, float)
@@ -69,7 +69,7 @@ def backlash_batch(x: np.ndarray, width: Any, g0: Any = 0.5) -> np.ndarray:
 
 
 def stiction_batch(x: np.ndarray, S: Any, J: Any, d0: Any = 1.0, g0: Any = 0.5) -> np.ndarray:
-    """Choudhury stiction (the rules of :class:`hbench.nonlinearities.Stiction`) for each
+    """Choudhury stiction (the rules of :class:`hbench.model.nonlinearities.Stiction`) for each
     candidate ``(S[c], J[c])``, starting stuck.
 
     Initial state: the valve last moved in direction ``d0`` (+1 or -1) and stuck at the input

@@ -6,9 +6,9 @@ pole pair of radius 0.75-0.9 or two real poles in 0.5-0.9, ``b = (1, 0.2-0.6)``,
 a nonlinearity class with random parameters, a proportional controller (loop gain 0.3-1.2 at
 DC), ``p`` in {4, 5, 6} at ``T = 0.6 s``, 800-1000 slow samples, the noise level and, unless
 the case is nominal, ONE effect from the catalogue with random parameters in the ranges below.
-The record is simulated in closed loop (:func:`hbench.simulate.simulate`; the time-varying
+The record is simulated in closed loop (:func:`hbench.sim.simulate.simulate`; the time-varying
 case runs the same lifted loop with a plant that changes mid-record) and written with
-:func:`hbench.readers.write_record`, so a test sees only the file.
+:func:`hbench.io.readers.write_record`, so a test sees only the file.
 
 Nominal conditions (what the nominal model of :mod:`hbench.diagnose.nominal` assumes): plant of
 order ``na <= 2`` with the delay's multiple of p equal to 0 (A3), equation-error noise
@@ -49,12 +49,12 @@ from typing import Any
 
 import numpy as np
 
-from hbench import scenarios
-from hbench.noise import NoiseModel
-from hbench.plants import DiscretePlant
-from hbench.records import Record
-from hbench.signals import Reference
-from hbench.simulate import LiftedPlant, Scenario, simulate
+from hbench.model.noise import NoiseModel
+from hbench.model.plants import DiscretePlant
+from hbench.model.signals import Reference
+from hbench.sim import scenarios
+from hbench.sim.records import Record
+from hbench.sim.simulate import LiftedPlant, Scenario, simulate
 
 EFFECTS: tuple[str, ...] = (
     "none",
@@ -239,7 +239,7 @@ def _pilot(
 
 
 def _radius(plant: dict[str, Any], kp: float, p: int, T: float) -> float:
-    from hbench.simulate import closed_loop_radius
+    from hbench.sim.simulate import closed_loop_radius
 
     sc = scenarios.build(
         _spec(plant, kp, p, T, 10, {"name": "linear"}, {"name": "white", "sigma2": 0.0})
@@ -364,7 +364,7 @@ def write_truth(
 ) -> Path:
     """Write ``record`` to ``directory`` as ``name + suffix`` and ``truth`` beside it as
     ``name.truth.json`` (a sidecar the diagnosis never reads)."""
-    from hbench.readers import write_record
+    from hbench.io.readers import write_record
 
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
@@ -415,10 +415,10 @@ def _simulate_switched(
 ) -> Record:
     """The closed loop of ``sc`` with the plant replaced by ``plant2`` from slow sample
     ``n_switch`` on (the state vector carried over: same orders, same realisation). The noise
-    is scaled by ``sc.sigma2`` as :func:`hbench.simulate.simulate` scales it (the generator's
+    is scaled by ``sc.sigma2`` as :func:`hbench.sim.simulate.simulate` scales it (the generator's
     own noise carries its level and has ``sigma2 = 1``); a scenario that sets its level by
     ``snr`` instead is refused."""
-    from hbench.seeding import run_streams
+    from hbench.sim.seeding import run_streams
 
     if sc.sigma2 is None:
         raise ValueError("the switched loop needs a scenario with sigma2, not snr")
@@ -653,7 +653,7 @@ def simulate_loop(case: LoopCase) -> Record:
 def simulate_loop_truth(case: LoopCase) -> tuple[Record, np.ndarray]:
     """:func:`simulate_loop`'s record and the valve position ``u`` over the log (never part of
     the record: a detector sees only what a plant historian logs)."""
-    from hbench import nonlinearities as nls
+    from hbench.model import nonlinearities as nls
 
     rng = np.random.default_rng(np.random.SeedSequence([20250602, case.seed]))
     warm = 300

@@ -38,8 +38,8 @@ import numpy as np
 
 from hbench.diagnose import classes, core
 from hbench.errors import InputError, MethodError, describe
-from hbench.identifiers import Estimate, IdentifyOptions, identify, run_status
-from hbench.records import Record
+from hbench.ident.identifiers import Estimate, IdentifyOptions, identify, run_status
+from hbench.sim.records import Record
 
 #: Denominator orders of the nominal blind model (the ``order`` effect goes beyond).
 NA_NOMINAL: tuple[int, int] = (1, 2)

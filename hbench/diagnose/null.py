@@ -25,9 +25,9 @@ from __future__ import annotations
 import numpy as np
 from scipy import signal
 
-from hbench import runtime
 from hbench.diagnose import core
 from hbench.diagnose import nominal as nm
+from hbench.system import runtime
 
 #: Draws of the noise model per record.
 N_DRAWS = 200

@@ -11,9 +11,9 @@ from typing import Any
 
 import numpy as np
 
-from hbench import atomic
 from hbench.diagnose import core, stats
 from hbench.diagnose.effects import format_p
+from hbench.system import atomic
 
 FIGURES: tuple[tuple[str, str], ...] = (
     ("simulation", "Measured output and the simulations of the nominal and the extended model"),

@@ -47,7 +47,7 @@ from hbench.diagnose import classes, core
 from hbench.diagnose import nominal as nm
 from hbench.diagnose.effects import BUILTIN, Detection, Effect
 from hbench.errors import InputError
-from hbench.records import Record
+from hbench.sim.records import Record
 
 #: The contract's effect names, in the order the JSON lists them.
 CONTRACT_EFFECTS: tuple[str, ...] = (

@@ -8,17 +8,18 @@ is noise-free); B from the active phases; the inner signal by the direct inverse
 minimum phase. Reconstructed here: B as the least-squares ratio of ``Delta w(kp + l)`` to
 ``Delta w(kp + 1)``; the Bezout inverse as the minimum-norm degree-0 combiner of the polyphase
 channels (exact because every channel of eq. 25 has order one); the structure selection of
-:func:`hbench.identifiers.select_structure` with the OLS denominator (Bai & Fu assume the orders).
+:func:`hbench.ident.identifiers.select_structure` with the OLS denominator (Bai & Fu assume the
+orders).
 """
 
 from __future__ import annotations
 
 from typing import Any, ClassVar
 
-from hbench import polyphase as pp
 from hbench.errors import InputError
 from hbench.hookspecs import Register, hookimpl
-from hbench.identifiers import (
+from hbench.ident import polyphase as pp
+from hbench.ident.identifiers import (
     INVERSES,
     Estimate,
     Identifier,
@@ -28,7 +29,7 @@ from hbench.identifiers import (
     inverse_inner,
     ols_fit,
 )
-from hbench.records import Record, Truth
+from hbench.sim.records import Record, Truth
 
 
 class BaiFu(Identifier):

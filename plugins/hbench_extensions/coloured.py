@@ -7,9 +7,9 @@ from typing import Any, ClassVar
 import numpy as np
 from scipy import signal
 
-from hbench import polyphase as pp
 from hbench.errors import InputError
-from hbench.identifiers import (
+from hbench.ident import polyphase as pp
+from hbench.ident.identifiers import (
     Estimate,
     Identifier,
     IdentifyOptions,
@@ -17,7 +17,7 @@ from hbench.identifiers import (
     bias_compensated_fit,
     blind_fit,
 )
-from hbench.records import Record, Truth
+from hbench.sim.records import Record, Truth
 
 
 def quiet_autocovariance(

@@ -7,8 +7,8 @@ from typing import Any, ClassVar
 import numpy as np
 
 from hbench.errors import InputError
-from hbench.identifiers import Estimate, Identifier, IdentifyOptions
-from hbench.records import Record, Truth
+from hbench.ident.identifiers import Estimate, Identifier, IdentifyOptions
+from hbench.sim.records import Record, Truth
 
 from .coloured import ColoredNoiseLSM
 

@@ -6,10 +6,10 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from hbench import polyphase as pp
 from hbench.errors import InputError
-from hbench.identifiers import Estimate, Identifier, IdentifyOptions
-from hbench.records import Record, Truth
+from hbench.ident import polyphase as pp
+from hbench.ident.identifiers import Estimate, Identifier, IdentifyOptions
+from hbench.sim.records import Record, Truth
 
 from .coloured import ColoredNoiseLSM
 
@@ -128,7 +128,7 @@ class JointRefinement(Identifier):
     ) -> Estimate:
         from hbench_wang import WangLSM
 
-        from hbench.identifiers import groups
+        from hbench.ident.identifiers import groups
 
         first = (ColoredNoiseLSM() if self.start == "wang-lsm-cn" else WangLSM()).identify(
             record, options

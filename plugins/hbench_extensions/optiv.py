@@ -6,9 +6,9 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from hbench import polyphase as pp
 from hbench.errors import InputError
-from hbench.identifiers import (
+from hbench.ident import polyphase as pp
+from hbench.ident.identifiers import (
     Estimate,
     Identifier,
     IdentifyOptions,
@@ -17,7 +17,7 @@ from hbench.identifiers import (
     blind_fit,
     largest_order,
 )
-from hbench.records import Record, Truth
+from hbench.sim.records import Record, Truth
 
 from .coloured import b_compensated, quiet_autocovariance
 

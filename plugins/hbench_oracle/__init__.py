@@ -11,9 +11,9 @@ from typing import ClassVar
 
 import numpy as np
 
-from hbench import polyphase as pp
 from hbench.hookspecs import Register, hookimpl
-from hbench.identifiers import (
+from hbench.ident import polyphase as pp
+from hbench.ident.identifiers import (
     Estimate,
     Identifier,
     IdentifyOptions,
@@ -22,7 +22,7 @@ from hbench.identifiers import (
     inner_ls,
     inverse_inner,
 )
-from hbench.records import Record, Truth
+from hbench.sim.records import Record, Truth
 
 
 class Oracle(Identifier):

@@ -18,16 +18,16 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from hbench import polyphase as pp
 from hbench.hookspecs import Register, hookimpl
-from hbench.identifiers import (
+from hbench.ident import polyphase as pp
+from hbench.ident.identifiers import (
     Estimate,
     Identifier,
     IdentifyOptions,
     bias_compensated_fit,
     blind_fit,
 )
-from hbench.records import Record, Truth
+from hbench.sim.records import Record, Truth
 
 
 def cross_relation_gram(W: np.ndarray) -> np.ndarray:

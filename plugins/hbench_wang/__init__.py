@@ -3,7 +3,7 @@ Hammerstein systems", Int. J. Control: the bias-compensated LSM and the IVM.
 
 Both follow the paper's Section 6 algorithm: (i) na and tau from ``V^(p)(na)`` of eq. (19) over
 shifts, (ii) A with nb = n0_b, (iii) nb from ``Var{Delta w^(l)}``, (iv) B, (v) U from eq. (27). The
-selection in (i) and (iii) is made automatic by :class:`hbench.identifiers.SelectionRule`; the
+selection in (i) and (iii) is made automatic by :class:`hbench.ident.identifiers.SelectionRule`; the
 tables it decided from are kept in ``Estimate.criteria``. ``wang-lsm`` and ``wang-iv`` keep the
 LSM's and the IVM's estimates apart so that both can be compared; ``wang`` makes the paper's
 choices between them, step (ii) for A by the integrated AIC and step (iv) for b by V_EIV.
@@ -15,10 +15,10 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from hbench import polyphase as pp
 from hbench.errors import InputError
 from hbench.hookspecs import Register, hookimpl
-from hbench.identifiers import (
+from hbench.ident import polyphase as pp
+from hbench.ident.identifiers import (
     INVERSES,
     Estimate,
     Identifier,
@@ -30,7 +30,7 @@ from hbench.identifiers import (
     inverse_inner,
     largest_order,
 )
-from hbench.records import Record, Truth
+from hbench.sim.records import Record, Truth
 
 
 def _check_instruments(method: str, m: int, lag0: int) -> None:
@@ -71,7 +71,7 @@ class _Wang(Identifier):
         selector=None,
         inner=inner_ls,
     ) -> Estimate:
-        """:func:`hbench.identifiers.blind_fit` with this method's name, options and rule."""
+        """:func:`hbench.ident.identifiers.blind_fit` with this method's name, options and rule."""
         return blind_fit(
             self.name,
             record,
@@ -124,13 +124,14 @@ class WangLSM(_Wang):
       phase p alone (Section 3.2's ``l = p``). Pooling brings the spreads of Table 4 to the
       paper's (measured: 1.0-1.1x the published std, against 2-4x from phase p alone).
     * ``eq15``: what eq. (15) gives where it has no real root (``clip``, default; ``real``,
-      ``modulus``, ``zero``: :func:`hbench.polyphase.noise_variance`).
+      ``modulus``, ``zero``: :func:`hbench.ident.polyphase.noise_variance`).
       It happens in the selection tables, on active phases (wrong shifts: Table 1's tau = 4
       column) and at over-fitted orders; the fit at the paper's structure has a real root.
     * ``inverse``: ``None`` (default) for eq. (27); one of
-      :data:`hbench.identifiers.INVERSES` for the direct inverse ``A(q)/B(q) y`` down-sampled by
+      :data:`hbench.ident.identifiers.INVERSES` for the direct inverse ``A(q)/B(q) y`` down-sampled
+      by
       p instead (Bezout combiner where B is not minimum phase, with ``auto``): the LSM estimates
-      in the direct inverse, Table 5's F_INV (:func:`hbench.identifiers.inverse_inner`).
+      in the direct inverse, Table 5's F_INV (:func:`hbench.ident.identifiers.inverse_inner`).
 
     Consistent for ARX noise ``e / A(q)``; biased for coloured equation noise (Table 4's LSM rows).
     """
@@ -236,7 +237,7 @@ class WangPaper(_Wang):
       square over their stacked rows, times ``1 + 2 na / K``; the penalty is the same for both).
     * Step (iv): each ``b_l`` (l = 2 .. nb) from the LSM (eq. 18) and from the IVM (eq. 21),
       both on ``w = A(q) y`` with the A chosen in step (ii); per run and per l, the one with the
-      smaller generalised prediction error ``V_EIV(l)`` (:func:`hbench.polyphase.v_eiv`).
+      smaller generalised prediction error ``V_EIV(l)`` (:func:`hbench.ident.polyphase.v_eiv`).
     * sigma^2 is eq. (15)'s (the LSM's) whichever A is kept; it enters eq. (18) only.
 
     ``select_a="aic"`` / ``select_b="v-eiv"`` are the paper's steps; ``"lsm"`` or ``"iv"`` take

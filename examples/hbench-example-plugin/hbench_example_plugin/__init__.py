@@ -14,8 +14,8 @@ import numpy as np
 import hbench
 from hbench.errors import InputError
 from hbench.hookspecs import Register
-from hbench.nonlinearities import Nonlinearity, State
-from hbench.plants import ContinuousPlant
+from hbench.model.nonlinearities import Nonlinearity, State
+from hbench.model.plants import ContinuousPlant
 from hbench_example_plugin.plain_ls import PlainLS
 
 __all__ = ["PlainLS", "Quantizer", "double_lag"]

@@ -18,9 +18,10 @@ with the OLS denominator. Under noise the OLS of step 1 is biased (the regressor
 ``Delta y(t - 1)`` holds ``e(t - 1)``, which is also in the target's ``Delta e(t)``), so this
 method is a baseline for what the paper's compensation buys, not a competitor.
 
-:func:`hbench.identifiers.blind_fit` packages this same route (plus sharing the selection between
+:func:`hbench.ident.identifiers.blind_fit` packages this same route (plus sharing the selection
+between
 methods run on one record) for methods that only replace a step; it is spelled out here so that
-each field of the :class:`~hbench.identifiers.Estimate` can be seen being filled.
+each field of the :class:`~hbench.ident.identifiers.Estimate` can be seen being filled.
 """
 
 from __future__ import annotations
@@ -29,8 +30,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from hbench import polyphase as pp
-from hbench.identifiers import (
+from hbench.ident import polyphase as pp
+from hbench.ident.identifiers import (
     Estimate,
     Identifier,
     IdentifyOptions,
@@ -42,7 +43,7 @@ from hbench.identifiers import (
     ols_fit,
     select_structure,
 )
-from hbench.records import Record, Truth
+from hbench.sim.records import Record, Truth
 
 
 class PlainLS(Identifier):
@@ -63,16 +64,16 @@ class PlainLS(Identifier):
 
         Parameters
         ----------
-        record : hbench.records.Record
+        record : hbench.sim.records.Record
             A batch of runs: ``y`` of shape ``(runs, K p)``, ``p``; ``x`` and ``r`` withheld.
-        options : hbench.identifiers.IdentifyOptions
+        options : hbench.ident.identifiers.IdentifyOptions
             Prior knowledge: ``nb_max`` (n0_b), the ``na`` range, the delay's multiple of p.
         truth : None
             Always None for a method that does not declare ``"truth"``.
 
         Returns
         -------
-        hbench.identifiers.Estimate
+        hbench.ident.identifiers.Estimate
             One row per run. Runs where an assumption fails are flagged
             (``identifiable`` False, ``reason`` says why), never raised.
         """

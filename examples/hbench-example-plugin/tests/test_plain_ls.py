@@ -1,14 +1,15 @@
 """The example plugin's own tests: run with the package installed (``pip install -e .``).
 
-``hbench.conformance`` holds the checks every hbench method must pass; a plugin runs them on its
+``hbench.bench.conformance`` holds the checks every hbench method must pass; a plugin runs them on
+its
 method by name, which also checks that the entry point registers it.
 """
 
 import numpy as np
 from hbench_example_plugin import PlainLS
 
-from hbench.conformance import check_method, paper_record
-from hbench.identifiers import IdentifyOptions, identify
+from hbench.bench.conformance import check_method, paper_record
+from hbench.ident.identifiers import IdentifyOptions, identify
 from hbench.plugins import registry
 
 

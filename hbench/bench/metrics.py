@@ -1,0 +1,94 @@
+"""Metrics comparing an estimate with the truth of a simulation.
+
+Fitness (the paper's Table 5, MATLAB ``compare``): ``F = 100 (1 - ||Us - U|| / ||U - mean U||)`` on
+the slow-rate inner signal, over the samples both signals define. The blind estimate carries the
+gain ambiguity of ``b1 = 1`` (``U_est = b1 U`` for a perfect estimate), so it must be scaled first:
+
+* ``"gain"`` (default, the paper's "the gain of G(q) is assumed to be known"):
+  ``Us = U_est / b1_true``;
+* ``"ls"``: the least-squares scale ``c = <U_est, U> / <U_est, U_est>``;
+* ``"ls-affine"``: least-squares scale and offset.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hbench.errors import InputError
+from hbench.numerics import kernels
+
+SCALINGS = ("gain", "ls", "ls-affine")
+
+
+def fitness(
+    U_est: np.ndarray, U: np.ndarray, scaling: str = "gain", gain: float | np.ndarray | None = None
+) -> np.ndarray:
+    """Fitness in % per run (``nan`` where the estimate is absent).
+
+    Parameters
+    ----------
+    U_est, U : ndarray, shape (runs, K)
+        Estimated (nan where undetermined) and true slow-rate inner signals, aligned.
+    scaling : {"gain", "ls", "ls-affine"}
+        How the gain ambiguity is removed (see the module docstring).
+    gain : float or ndarray, optional
+        The true b1 (required for ``"gain"``).
+    """
+    return fitnesses(U_est, U, (scaling,), gain)[scaling]
+
+
+def fitnesses(
+    U_est: np.ndarray,
+    U: np.ndarray,
+    scalings: tuple[str, ...] = SCALINGS,
+    gain: float | np.ndarray | None = None,
+    *,
+    compiled: bool = True,
+) -> dict[str, np.ndarray]:
+    """:func:`fitness` under several scalings, ``{scaling: (runs,)}``; the masks, the centred
+    truth and its norm are computed once for all of them (the same numbers as one by one).
+
+    The scalings ``"gain"`` and ``"ls"`` are computed by a compiled kernel where one is built
+    (:func:`hbench.numerics.kernels.fitness`: the same operations and sums); ``compiled=False``
+    keeps to
+    numpy."""
+    for scaling in scalings:
+        if scaling not in SCALINGS:
+            raise InputError(
+                f"fitness scaling must be one of {', '.join(SCALINGS)}, got {scaling!r}"
+            )
+    if "gain" in scalings and gain is None:
+        raise InputError("fitness scaling 'gain' needs the true gain b1")
+    U_est = np.atleast_2d(U_est)
+    U = np.atleast_2d(U)
+    if compiled and set(scalings) <= {"gain", "ls"}:
+        both = kernels.fitness(U_est, U, 1.0 if gain is None else gain)
+        if both is not None:
+            return {s: both[0] if s == "gain" else both[1] for s in scalings}
+    m = np.isfinite(U_est) & np.isfinite(U)
+    n = m.sum(axis=1)
+    e = np.where(m, U_est, 0.0)
+    u = np.where(m, U, 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean_u = np.sum(u, axis=1) / n
+        den = np.sqrt(np.sum(np.where(m, u - mean_u[:, None], 0.0) ** 2, axis=1))
+    out = {}
+    for scaling in scalings:
+        if scaling == "gain":
+            with np.errstate(invalid="ignore", divide="ignore"):  # gain 0: -inf, as compiled
+                us = e / np.broadcast_to(np.asarray(gain, float), (U.shape[0],))[:, None]
+        elif scaling == "ls":
+            with np.errstate(invalid="ignore", divide="ignore"):
+                c = np.sum(e * u, axis=1) / np.sum(e * e, axis=1)
+            us = c[:, None] * e
+        else:
+            with np.errstate(invalid="ignore", divide="ignore"):
+                me = np.sum(e, axis=1) / n
+                mu = np.sum(u, axis=1) / n
+                ec = np.where(m, e - me[:, None], 0.0)
+                c = np.sum(ec * np.where(m, u - mu[:, None], 0.0), axis=1) / np.sum(ec * ec, axis=1)
+            us = c[:, None] * ec + mu[:, None]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            num = np.sqrt(np.sum(np.where(m, us - u, 0.0) ** 2, axis=1))
+            out[scaling] = np.where(n > 1, 100.0 * (1.0 - num / den), np.nan)
+    return out

@@ -1,0 +1,1 @@
+"""Records read from measured files (CSV, Parquet, plant logs) and written back."""

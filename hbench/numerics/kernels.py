@@ -1,0 +1,512 @@
+"""Compiled kernels for the loops numpy cannot vectorise well, and the switch to the numpy path.
+
+``hbench/numerics/_kernels.c`` is built by ``pip install`` as an optional extension (``setup.py``);
+this
+module loads it through :mod:`ctypes`. Each kernel performs the floating-point operations of the
+numpy path it stands for, in the same order and without fused multiply-adds, so **both paths give
+the same numbers** (equal as floats; only the sign of an exact zero, or of a nan, may differ;
+checked by ``tests/test_kernels.py`` for every built-in actuator, controllers of 0-3 states and
+plants of order 1-3): the compiled one is only faster. A run's numbers never depend on the runs
+batched with it.
+
+* ``HBENCH_KERNELS=numpy`` (environment) forces the numpy path; ``auto`` (default) uses the
+  compiled kernels when they were built. :func:`use` switches for the calling thread or task
+  (tests).
+* Without a C compiler at install time, or with a stale build (compiled from another
+  ``_kernels.c`` than the one beside this module: ``setup.py`` compiles the source's SHA-256
+  into the library), hbench runs the numpy path; :func:`backend` says which one runs, and
+  ``hbench plugins`` and every run's ``provenance.json`` say it.
+
+Kernels:
+
+* :func:`closed_loop`: :func:`hbench.sim.simulate._run_loop` for the built-in actuators
+  (:data:`NONLINEARITY_CODES`) and the state-space controllers of :mod:`hbench.model.controllers`;
+  other actuators (plugins) run the numpy loop.
+* :func:`filtered_output`: ``w = A(q) y`` of :func:`hbench.ident.polyphase.filtered_output`.
+* :func:`period_mean_squares`: ``Var{Delta w^(l)}`` of
+  :func:`hbench.ident.polyphase.phase_variances`.
+* :func:`lfilter_rows`: ``scipy.signal.lfilter`` with one coefficient set per run
+  (:func:`hbench.ident.polyphase.batched_lfilter`, Bai & Fu's direct inverse).
+* :func:`inner_signal_ls`: eq. (27) of :func:`hbench.ident.polyphase.inner_signal_ls`, its normal
+  equations formed and solved with LAPACK ``dptsv``'s arithmetic (reference ``dpttrf`` and
+  ``dpttrs``, which the numpy path calls).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import contextvars
+import ctypes
+import functools
+import hashlib
+import importlib.util
+import os
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hbench.errors import InputError
+from hbench.model import nonlinearities as nl
+from hbench.model.controllers import Controller
+
+BACKENDS = ("auto", "numpy")
+
+#: Built-in actuators the closed-loop kernel knows: ``type -> (code, parameter names)``.
+NONLINEARITY_CODES: dict[type[nl.Nonlinearity], tuple[int, tuple[str, ...]]] = {
+    nl.Linear: (0, ("gain",)),
+    nl.Deadband: (1, ("d1", "d2", "slope")),
+    nl.Saturation: (2, ("u_min", "u_max")),
+    nl.Backlash: (3, ("d",)),
+    nl.Stiction: (4, ("S", "J")),
+    nl.StictionHe: (5, ("f_s", "f_d")),
+}
+#: The actuator state's fields, in the columns the kernel reads and updates.
+_STATE = ("x_prev", "u_prev", "x_ss", "direction", "stuck")
+
+_F64 = np.ctypeslib.ndpointer(dtype=np.float64, flags="C_CONTIGUOUS,ALIGNED")
+_U8 = np.ctypeslib.ndpointer(dtype=np.uint8, flags="C_CONTIGUOUS,ALIGNED")
+_I64 = ctypes.c_int64
+#: The backend :func:`use` asked for in this context (a context variable, so a thread's or
+#: task's ``use`` leaves the others alone); ``None``: ``HBENCH_KERNELS``.
+_override: contextvars.ContextVar[str | None] = contextvars.ContextVar(
+    "hbench_kernels", default=None
+)
+
+
+def _asked() -> str:
+    """The backend asked for: :func:`use`'s, else ``HBENCH_KERNELS`` (default ``auto``)."""
+    name = _override.get()
+    return os.environ.get("HBENCH_KERNELS", "auto") if name is None else name
+
+
+@functools.cache
+def _library() -> tuple[ctypes.CDLL | None, str]:
+    """The compiled library and a note on why it is absent (``""`` when loaded)."""
+    spec = importlib.util.find_spec("hbench.numerics._kernels")
+    if spec is None or spec.origin is None:
+        return None, "not built (no C compiler at install time?): the numpy path runs"
+    lib = ctypes.CDLL(spec.origin)
+    try:
+        lib.hb_source_sha256.restype = ctypes.c_char_p
+        built = lib.hb_source_sha256().decode()
+    except AttributeError:  # an older build, or symbols not exported
+        built = "unknown"
+    source = Path(__file__).with_name("_kernels.c")
+    if source.exists() and built != hashlib.sha256(source.read_bytes()).hexdigest():
+        return None, (
+            "stale build (hbench/numerics/_kernels.c changed since it was compiled): run "
+            "`pip install -e .` again; the numpy path runs"
+        )
+    lib.hb_closed_loop.restype = ctypes.c_int
+    lib.hb_closed_loop.argtypes = [
+        *(_I64,) * 4,
+        *(_F64,) * 4,
+        _I64,
+        *(_F64,) * 3,
+        ctypes.c_double,
+        _I64,
+        _I64,
+        *(_F64,) * 7,
+    ]
+    lib.hb_filtered_output.restype = None
+    lib.hb_filtered_output.argtypes = [*(_I64,) * 3, _F64, _F64, _F64, ctypes.c_void_p]
+    lib.hb_period_mean_squares.restype = None
+    lib.hb_period_mean_squares.argtypes = [*(_I64,) * 4, ctypes.c_void_p, _I64, _F64]
+    lib.hb_filtered_phase_variances.restype = None
+    lib.hb_filtered_phase_variances.argtypes = [*(_I64,) * 3, _F64, _F64, *(_I64,) * 3, _F64]
+    lib.hb_fitness.restype = None
+    lib.hb_fitness.argtypes = [*(_I64,) * 2, *(_F64,) * 6]
+    lib.hb_lfilter_rows.restype = ctypes.c_int
+    lib.hb_lfilter_rows.argtypes = [*(_I64,) * 3, _F64, _F64, ctypes.c_void_p, _I64, _F64]
+    lib.hb_inner_signal_ls.restype = ctypes.c_int
+    lib.hb_inner_signal_ls.argtypes = [*(_I64,) * 3, _F64, *(_I64,) * 2, _U8, _F64, _F64, _F64]
+    return lib, ""
+
+
+def backend() -> str:
+    """``"c"`` when the compiled kernels run, else ``"numpy"``."""
+    asked = _asked()
+    if asked not in BACKENDS:
+        raise InputError(f"HBENCH_KERNELS must be one of {', '.join(BACKENDS)}, got {asked!r}")
+    if asked == "numpy":
+        return "numpy"
+    return "c" if _library()[0] is not None else "numpy"
+
+
+def status() -> str:
+    """One line for people: which path runs and why."""
+    b = backend()
+    if b == "c":
+        own_route = [
+            what
+            for what, same in (
+                ("eq. (27) (this LAPACK's dptsv)", lapack_is_reference()),
+                ("lfilter (this scipy's)", lfilter_is_scipys()),
+                ("the fitness (this numpy's sums)", sums_are_numpys()),
+            )
+            if not same
+        ]
+        if own_route:  # fused multiply-adds in the libraries: their own routes keep both equal
+            return (
+                "compiled kernels (hbench.numerics._kernels); numpy/scipy for "
+                + ", ".join(own_route)
+                + ", which compute otherwise than the kernels"
+            )
+        return "compiled kernels (hbench.numerics._kernels)"
+    why = "HBENCH_KERNELS=numpy" if _asked() == "numpy" else _library()[1]
+    return f"numpy path ({why})"
+
+
+@contextlib.contextmanager
+def use(name: str) -> Iterator[None]:
+    """Run the body with the backend ``name`` (``"auto"`` or ``"numpy"``), in this thread (or
+    task) only; processes forked within the body inherit it."""
+    if name not in BACKENDS:
+        raise InputError(f"kernel backend must be one of {', '.join(BACKENDS)}, got {name!r}")
+    token = _override.set(name)
+    try:
+        yield
+    finally:
+        _override.reset(token)
+
+
+def _compiled() -> ctypes.CDLL | None:
+    """The library when the compiled kernels run (:func:`backend` is ``"c"``), else None."""
+    return _library()[0] if backend() == "c" else None
+
+
+def _f64(a: Any) -> np.ndarray:
+    """``a`` as C-ordered, aligned float64 (a copy only where it is not already)."""
+    return np.require(a, np.float64, ("C", "A"))
+
+
+def supports_loop(controller: Controller, nonlinearity: nl.Nonlinearity) -> bool:
+    """True when :func:`closed_loop` can run this controller and actuator compiled."""
+    ctl = type(controller)
+    return (
+        type(nonlinearity) in NONLINEARITY_CODES
+        and ctl.step is Controller.step
+        and ctl.initial_state is Controller.initial_state
+        and controller.A.shape[0] <= 64
+    )
+
+
+def closed_loop(
+    lp: Any,
+    controller: Controller,
+    nonlinearity: nl.Nonlinearity,
+    r: np.ndarray,
+    v_slow: np.ndarray,
+    p: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """``(y0, x, U)`` of the closed loop, compiled; ``None`` when the numpy loop must run.
+
+    The arguments are those of :func:`hbench.sim.simulate._run_loop` but for ``v_slow``, the noise
+    at the controller's samples (``v[:, ::p]``).
+    """
+    lib = _compiled()
+    L = lp.Fp.shape[0]
+    if lib is None or not supports_loop(controller, nonlinearity) or L > 64:
+        return None
+    R, K = r.shape
+    code, names = NONLINEARITY_CODES[type(nonlinearity)]
+    prm = _f64([getattr(nonlinearity, n) for n in names])
+    init = nonlinearity.initial_state(R)
+    state = np.zeros((R, len(_STATE)))
+    for j, key in enumerate(_STATE):
+        if key in init:
+            state[:, j] = init[key]
+    y0 = np.empty((R, K * p))
+    X = np.empty((R, K))
+    U = np.empty((R, K))
+    c = controller
+    rc = lib.hb_closed_loop(
+        R,
+        K,
+        L,
+        p,
+        _f64(lp.Fp),
+        _f64(lp.Gp),
+        _f64(lp.Ob),
+        _f64(lp.Db),
+        c.A.shape[0],
+        _f64(c.A),
+        _f64(c.B),
+        _f64(c.C),
+        float(c.D),
+        int(c.delay),
+        code,
+        prm,
+        state,
+        _f64(r),
+        _f64(v_slow),
+        y0,
+        X,
+        U,
+    )
+    if rc != 0:
+        raise RuntimeError(f"hb_closed_loop failed with code {rc}")
+    return y0, X, U
+
+
+def filtered_output(y: np.ndarray, a: np.ndarray) -> np.ndarray | None:
+    """``w = A(q) y`` per run, compiled; ``None`` when the numpy path must run (it also
+    serves shapes the kernel does not take, e.g. one coefficient row broadcast to all runs)."""
+    out = _filtered_output(y, a, False)
+    return None if out is None else out[0]
+
+
+def filtered_output_and_delta(y: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(w, delta(w))`` (:func:`hbench.ident.polyphase.delta`) in one compiled pass per run;
+    ``None``
+    when the numpy path must run."""
+    return _filtered_output(y, a, True)
+
+
+def _filtered_output(
+    y: np.ndarray, a: np.ndarray, with_delta: bool
+) -> tuple[np.ndarray, np.ndarray | None] | None:
+    lib = _compiled()
+    if lib is None or y.ndim != 2 or a.ndim != 2 or a.shape[0] != y.shape[0] or a.shape[1] < 1:
+        return None
+    y, a = _f64(y), _f64(a)
+    R, N = y.shape
+    w = np.empty((R, N))
+    dw = np.empty((R, N)) if with_delta else None
+    lib.hb_filtered_output(R, N, a.shape[1] - 1, a, y, w, None if dw is None else dw.ctypes.data)
+    return w, dw
+
+
+def period_mean_squares(block: np.ndarray) -> np.ndarray | None:
+    """``np.mean(np.square(block), axis=1)`` for ``block`` of shape ``(runs, n, width)``, a
+    strided view with unit element stride (:func:`hbench.ident.polyphase.period_block`), compiled;
+    ``None`` when numpy must run (numpy path, ``width < 2``, no periods, another layout)."""
+    lib = _compiled()
+    if lib is None or block.ndim != 3 or block.dtype != np.float64:
+        return None
+    R, n, width = block.shape
+    s0, s1, s2 = block.strides
+    if width < 2 or n < 1 or R < 1 or s2 != 8 or s1 % 8 or s0 % 8 or s1 < 8 * width:
+        return None
+    out = np.empty((R, width))
+    lib.hb_period_mean_squares(R, n, s1 // 8, width, block.ctypes.data, s0 // 8, out)
+    return out
+
+
+def filtered_phase_variances(
+    y: np.ndarray, a: np.ndarray, p: int, t0: int, n: int
+) -> np.ndarray | None:
+    """``(1/n) sum_j dw(t0 + j p + l)^2`` for ``l = 0 .. p - 1``, ``dw = delta(A(q) y)`` per run
+    (what :func:`hbench.ident.polyphase.phase_variances` computes from :func:`filtered_output`'s
+    ``w``), compiled without forming ``w`` or ``dw``: the same operations in the same order.
+    ``None`` when numpy must run (numpy path, ``p < 2`` where numpy sums pairwise, ``p > 64``,
+    no period, or a window that reaches an undefined ``w``)."""
+    lib = _compiled()
+    if lib is None or y.ndim != 2 or a.ndim != 2 or a.shape[0] != y.shape[0] or a.shape[1] < 1:
+        return None
+    R, N = y.shape
+    na = a.shape[1] - 1
+    if not 2 <= p <= 64 or n < 1 or t0 - 1 < na or t0 + n * p > N:
+        return None
+    y, a = _f64(y), _f64(a)
+    out = np.empty((R, p))
+    lib.hb_filtered_phase_variances(R, N, na, a, y, p, t0, n, out)
+    return out
+
+
+def fitness(
+    U_est: np.ndarray, U: np.ndarray, gain: np.ndarray
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """:func:`hbench.bench.metrics.fitnesses` under the scalings ``"gain"`` and ``"ls"``, compiled:
+    ``(F_gain, F_ls)`` per run. ``None`` when numpy must run: numpy path, inputs that are not
+    C-ordered float64 rows of one shape (numpy would sum them in another order), or a numpy
+    whose row sums are not the kernel's (:func:`sums_are_numpys`)."""
+    if _compiled() is None or not sums_are_numpys():
+        return None
+    return _fitness(U_est, U, gain)
+
+
+def _fitness(
+    U_est: np.ndarray, U: np.ndarray, gain: np.ndarray
+) -> tuple[np.ndarray, np.ndarray] | None:
+    lib = _library()[0]
+    if lib is None or U_est.ndim != 2 or U.shape != U_est.shape or U.shape[1] < 1:
+        return None
+    for a in (U_est, U):  # exactly ndarrays: a masked array or matrix keeps its own rules
+        if type(a) is not np.ndarray or a.dtype != np.float64 or not a.flags.c_contiguous:
+            return None
+        if not a.flags.aligned:
+            return None
+    R, K = U.shape
+    g = np.ascontiguousarray(np.broadcast_to(np.asarray(gain, float), (R,)))
+    out_gain, out_ls = np.empty(R), np.empty(R)
+    lib.hb_fitness(R, K, U_est, U, g, out_gain, out_ls, np.empty(3 * K))
+    return out_gain, out_ls
+
+
+@functools.cache
+def sums_are_numpys() -> bool:
+    """Whether the kernel of :func:`fitness` gives numpy's numbers here: its row sums follow
+    numpy's pairwise summation, which a numpy release may change. Checked once per process on
+    rows of many lengths and magnitudes with undefined samples; where it fails, the fitness is
+    computed by numpy on both backends. Independent of the backend switch."""
+    from hbench.bench import metrics
+
+    rng = np.random.default_rng(12)
+    for K in (1, 2, 7, 8, 9, 15, 16, 17, 127, 128, 129, 130, 255, 256, 257, 500, 1001, 4099):
+        U = rng.standard_normal((4, K)) * np.exp(rng.uniform(-30, 30, (4, K)))
+        U_est = 1.7 * U + rng.standard_normal((4, K)) * np.exp(rng.uniform(-30, 30, (4, K)))
+        U_est[1, : min(K, 3)] = np.nan
+        U_est[2] = np.nan
+        U[3, K // 2] = np.inf
+        gain = rng.uniform(0.5, 2.0, 4)
+        got = _fitness(U_est, U, gain)
+        want = metrics.fitnesses(U_est, U, ("gain", "ls"), gain, compiled=False)
+        if got is None:
+            return False
+        pairs = zip(got, want.values(), strict=True)
+        if not all(np.array_equal(g, w, equal_nan=True) for g, w in pairs):
+            return False
+    return True
+
+
+def lfilter_rows(num: np.ndarray, den: np.ndarray, x: np.ndarray) -> np.ndarray | None:
+    """``scipy.signal.lfilter(num[r], den[r], x[r])`` for every run, from rest, compiled;
+    ``None`` when scipy must run (numpy path, a denominator of length 1, more than 64
+    coefficients, or a scipy whose ``lfilter`` does not compute as the kernel does: see
+    :func:`lfilter_is_scipys`)."""
+    if _compiled() is None or not lfilter_is_scipys():
+        return None
+    return _lfilter_rows(num, den, x)
+
+
+@functools.cache
+def lfilter_is_scipys() -> bool:
+    """Whether the kernel of :func:`lfilter_rows` gives ``scipy.signal.lfilter``'s numbers here
+    (scipy built without fused multiply-adds), checked once per process on a fixed filter; where
+    it does not, scipy filters on both backends (the noise shaping and Bai & Fu's inverse), so
+    they still agree. Like :func:`lapack_is_reference`, independent of the backend switch."""
+    from scipy import signal
+
+    rng = np.random.default_rng(11)
+    x = rng.standard_normal((3, 400)) * np.exp(rng.uniform(-5, 5, (3, 1)))
+    num = rng.standard_normal((3, 3))
+    den = np.concatenate([1.0 + rng.random((3, 1)), 0.4 * rng.standard_normal((3, 3))], axis=1)
+    got = _lfilter_rows(num, den, x)
+    want = np.stack([signal.lfilter(num[r], den[r], x[r]) for r in range(3)])
+    return got is not None and bool(np.array_equal(got, want))
+
+
+def _lfilter_rows(num: np.ndarray, den: np.ndarray, x: np.ndarray) -> np.ndarray | None:
+    lib = _library()[0]  # the build, whatever the switch (the public wrapper reads that)
+    if lib is None or x.ndim != 2 or num.ndim != 2 or den.ndim != 2:
+        return None
+    n = max(num.shape[1], den.shape[1])
+    R, N = x.shape
+    if num.shape[0] != R or den.shape[0] != R or num.shape[1] < 1 or den.shape[1] < 2 or n > 64:
+        return None
+    if not np.all(den[:, 0] != 0):  # scipy refuses a[0] == 0: let it say so
+        return None
+    b = np.zeros((R, n))
+    a = np.zeros((R, n))
+    b[:, : num.shape[1]] = num
+    a[:, : den.shape[1]] = den
+    x = np.asarray(x, dtype=np.float64)
+    if x.strides[1] != 8 or x.strides[0] % 8:
+        x = np.ascontiguousarray(x)
+    y = np.empty((R, N))
+    rc = lib.hb_lfilter_rows(R, N, n, b, a, x.ctypes.data, x.strides[0] // 8, y)
+    if rc != 0:
+        raise RuntimeError(f"hb_lfilter_rows failed with code {rc}")
+    return y
+
+
+def inner_signal_ls(
+    W: np.ndarray,
+    valid: np.ndarray,
+    h0: np.ndarray,
+    h1: np.ndarray,
+    *,
+    start: int | None = None,
+) -> np.ndarray | None:
+    """``U~`` of eq. (27) (:func:`hbench.ident.polyphase.inner_signal_ls`) from the SIMO blocks
+    ``W``
+    ``(runs, M, p)`` (or, with ``start``, from the rows of ``w`` ``(runs, N)`` read in place:
+    ``W[:, k, i] = w[:, start + k p + i]``), their validity ``(M, p)`` and the channel
+    coefficients ``(runs, p)``, compiled; ``None`` when the numpy path must run (also where
+    this machine's LAPACK ``dptsv`` does not compute as the reference ``dpttrf``/``dpttrs`` the
+    kernel mirrors: see :func:`lapack_is_reference`). Entries that are not ``valid`` are taken
+    as 0, never read."""
+    if _compiled() is None or not lapack_is_reference():
+        return None
+    return _inner_signal_ls(W, valid, h0, h1, start)
+
+
+def _inner_signal_ls(
+    W: np.ndarray,
+    valid: np.ndarray,
+    h0: np.ndarray,
+    h1: np.ndarray,
+    start: int | None = None,
+) -> np.ndarray | None:
+    lib = _library()[0]  # the build, whatever the switch (the public wrapper reads that)
+    if lib is None or valid.ndim != 2 or h0.ndim != 2 or h1.ndim != 2:
+        return None
+    M, p = valid.shape
+    R = W.shape[0]
+    if start is None:  # the blocks
+        if W.shape != (R, M, p):
+            return None
+        start, row_stride = 0, M * p
+    else:  # the rows of w: every valid sample must lie in them
+        if W.ndim != 2 or start < 0:
+            return None
+        cells = np.flatnonzero(valid)
+        if cells.size and start + int(cells[-1]) >= W.shape[1]:  # flat index k p + i
+            return None
+        row_stride = W.shape[1]
+    if h0.shape != (R, p) or h1.shape != (R, p) or p < 1:
+        return None
+    U = np.empty((R, M + 1))
+    rc = lib.hb_inner_signal_ls(
+        R,
+        M,
+        p,
+        _f64(W),
+        row_stride,
+        int(start),
+        np.ascontiguousarray(valid, dtype=np.uint8),
+        _f64(h0),
+        _f64(h1),
+        U,
+    )
+    if rc != 0:
+        raise RuntimeError(f"hb_inner_signal_ls failed with code {rc}")
+    return U
+
+
+@functools.cache
+def lapack_is_reference() -> bool:
+    """Whether scipy's LAPACK ``dptsv`` gives the reference ``dpttrf``/``dptts2`` arithmetic that
+    :func:`inner_signal_ls`'s kernel performs (no fused multiply-adds), checked once per process
+    on a fixed eq.-(27) system; where it does not (an FMA build of LAPACK), eq. (27) runs the
+    numpy path on both backends, so they still agree. A property of the build and the libraries,
+    not of the backend switch (:func:`use`), which it neither reads nor depends on."""
+    if _library()[0] is None:
+        return False
+    from hbench.ident import polyphase as pp  # polyphase imports this module
+
+    rng = np.random.default_rng(27)
+    valid = np.ones((60, 5), bool)
+    valid[-1, 2:] = False
+    W = np.where(
+        valid, rng.standard_normal((4, 60, 5)) * np.exp(rng.uniform(-5, 5, (4, 1, 1))), 0.0
+    )
+    b = np.concatenate([np.ones((4, 1)), rng.standard_normal((4, 2))], axis=1)
+    h0, h1 = pp.simo_channels(b, 5)
+    got = _inner_signal_ls(W, valid, h0, h1)
+    with use("numpy"):
+        want = pp.inner_signal_ls(pp.SimoSystem(W=W, valid=valid, n0=1), h0, h1)
+    return got is not None and bool(np.array_equal(got, want))

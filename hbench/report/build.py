@@ -1,0 +1,1106 @@
+"""``hbench report RUN_DIR [--out DIR]``: the comparison report of a sweep or a reproduction.
+
+Input: a folder with tidy ``rows.parquet`` (a sweep's root, a reproduction), or with none at its
+root, every ``**/rows.parquet`` below it (a Hydra multirun has one per job; rows present twice are
+kept once). ``provenance.json`` files (root and below) feed the provenance block; ``examples.npz``
+files (written by ``hbench reproduce``; see :func:`hbench.paper.reproduce.save_examples`) the x-U
+graphs; ``reproduce.csv`` (and ``investigation.csv``) the comparison with the paper.
+
+Output (default ``RUN_DIR/report/``, or a fresh ``RUN_DIR/report-<time>/`` if that exists): a
+self-contained ``report.html`` (figures embedded as base64 PNG data URIs, no external resources),
+the figures as PNG (200 dpi) and PDF (TrueType fonts), and the tables. The page opens with the
+headline (:func:`write_summary`: ``summary.{csv,md,tex}`` and ``summary_bias.{csv,md,tex}``,
+:mod:`hbench.tables.summary` and :mod:`hbench.tables.headline`): who wins each cell, with what
+confidence.
+The other tables, as Markdown and LaTeX (booktabs), the method's label in the ``method``
+column: ``fitness``, ``bias`` (the contract's aggregation), ``structure`` (hit rates of na, nb,
+tau, delay), ``ranking`` (mean rank of fitness per cell among the blind methods; oracles are
+bounds, not ranked), ``timing`` (seconds per run), and, when some run is not ``ok``,
+``failures`` (:func:`failure_table`: per method and cell, how many runs failed or were not
+identifiable, and why). On the page every table scrolls in its own box, columns with no value
+are left out (said under the table), the long tables and the provenance are folded
+(``<details>``), and the provenance is one block: what every job shares, and a table of what
+differs. A table or figure with no data is replaced by a one-line note (the
+Markdown and LaTeX files of an empty table say why it is empty); when no run produced an estimate
+the page says so first. Methods whose class is a reconstruction (``reconstruction = True``) are
+labelled so wherever they appear. When a method of the ``hbench_extensions`` plugin package ran,
+a section "Beyond the paper" follows the tables (:mod:`hbench.report.beyond`; its tables
+``beyond_*`` are written beside the others).
+"""
+
+from __future__ import annotations
+
+import argparse
+import base64
+import html
+import json
+import math
+import os
+from collections import Counter
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from hbench.errors import InputError
+from hbench.report.style import method_info
+from hbench.system import atomic
+
+#: Names not in the registry that reports may meet (defined by ``hbench reproduce``).
+EXTRA_LABELS = {"wang-lsm-inv": "wang-lsm-inv (LSM + direct inverse)"}
+FIGURE_IDS = (
+    "fig-fitness-snr",
+    "fig-bias-std-snr",
+    "fig-xu",
+    "fig-time",
+    "fig-ranking",
+    "fig-beyond-delay",
+)
+
+
+# --------------------------------------------------------------------------- inputs
+
+
+def find_rows(run_dir: Path) -> list[Path]:
+    """``RUN_DIR/rows.parquet`` if present, else every ``**/rows.parquet`` below (sorted)."""
+    root = run_dir / "rows.parquet"
+    if root.is_file():
+        return [root]
+    return sorted(p for p in run_dir.rglob("rows.parquet") if p.is_file())
+
+
+def load_rows(run_dir: Path) -> tuple[Any, list[Path]]:
+    """The tidy rows under ``run_dir`` (de-duplicated) and the files they came from."""
+    import pandas as pd
+
+    from hbench.bench.runner import ID_COLUMNS
+
+    if not run_dir.is_dir():
+        raise InputError(f"{run_dir} is not a folder")
+    files = find_rows(run_dir)
+    if not files:
+        raise InputError(f"no rows.parquet in {run_dir} or below: nothing to report")
+    frames = []
+    for f in files:
+        try:
+            frames.append(pd.read_parquet(f))
+        except Exception as exc:
+            raise InputError(f"cannot read {f}: {type(exc).__name__}: {exc}") from None
+    rows = pd.concat(frames, ignore_index=True)
+    needed = {"method", "quantity", "value", "status", "snr"}
+    missing = sorted(needed - set(rows.columns))
+    if missing:
+        raise InputError(f"{files[0]} is not tidy hbench rows (missing {', '.join(missing)})")
+    if rows.empty:
+        raise InputError(f"the rows under {run_dir} are empty: nothing to report")
+    for col in ID_COLUMNS:
+        if col not in rows.columns:
+            rows[col] = math.nan if col in ("sigma2", "snr_target", "p", "delay") else ""
+    key = [c for c in (*ID_COLUMNS, "quantity") if c in rows.columns]
+    rows = rows.drop_duplicates(subset=key, keep="first").reset_index(drop=True)
+    return rows, files
+
+
+def load_provenance(run_dir: Path) -> list[tuple[Path, dict[str, Any]]]:
+    out = []
+    for f in sorted(run_dir.rglob("provenance.json")):
+        if "report" in f.relative_to(run_dir).parts[:-1]:
+            continue
+        try:
+            out.append((f, json.loads(f.read_text())))
+        except (OSError, ValueError):
+            continue
+    return out
+
+
+def load_examples(run_dir: Path) -> list[dict[str, Any]]:
+    """Examples saved by :func:`hbench.paper.reproduce.save_examples` under ``run_dir``."""
+    import numpy as np
+
+    out = []
+    for f in sorted(run_dir.rglob("examples.npz")):
+        try:
+            data = np.load(f, allow_pickle=False)
+        except (OSError, ValueError):
+            continue
+        with data:
+            ids = sorted({k.split("__")[0] for k in data.files})
+            for i in ids:
+                try:
+                    meta = json.loads(str(data[f"{i}__meta"]))
+                    ex = {
+                        **meta,
+                        "x": data[f"{i}__x"],
+                        "U": data[f"{i}__U"],
+                        "gain": float(data[f"{i}__gain"]),
+                        "estimates": {},
+                    }
+                except KeyError:
+                    continue
+                prefix = f"{i}__est__"
+                for k in data.files:
+                    if k.startswith(prefix):
+                        ex["estimates"][k[len(prefix) :]] = data[k]
+                out.append(ex)
+    return out
+
+
+# --------------------------------------------------------------------------- labels
+
+
+def method_label(name: str) -> str:
+    """The name shown in reports: reconstructions and oracles say so."""
+    info = method_info(name)
+    label = EXTRA_LABELS.get(name, name)
+    if info["reconstruction"]:
+        label += " (reconstruction)"
+    if info["oracle"]:
+        label += " (oracle bound)"
+    return label
+
+
+def _series_label(series: str) -> str:
+    """Label of a bias/std series: ``method[ = method2][ | facet]``."""
+    methods, _, facet = series.partition(" | ")
+    label = " = ".join(method_label(m) for m in methods.split(" = "))
+    return label + (f" | {facet}" if facet else "")
+
+
+# --------------------------------------------------------------------------- statistics
+
+
+def _num(v: Any) -> str:
+    try:
+        f = float(v)
+    except (TypeError, ValueError):
+        return str(v)
+    if math.isnan(f):
+        return "?"
+    return str(int(f)) if f.is_integer() else f"{f:g}"
+
+
+def _facet(df: Any) -> Any:
+    """``"backlash, p=5, delay=3"`` per row (the panels of the fitness figure)."""
+    if not len(df):
+        import pandas as pd
+
+        return pd.Series([], index=df.index, dtype=object)
+    return (
+        df["nonlinearity"].astype(str)
+        + ", p="
+        + df["p"].map(_num)
+        + ", delay="
+        + df["delay"].map(_num)
+    )
+
+
+def _merge_identical(bias: Any) -> Any:
+    """Draw series with identical numbers once, labelled ``a = b`` (e.g. ``wang-lsm`` and
+    ``wang-lsm-inv``: the same estimates, two inner-signal steps)."""
+    import numpy as np
+
+    seen: dict[bytes, str] = {}
+    rename: dict[str, str] = {}
+    drop: list[str] = []
+    for series, g in bias.groupby("series", sort=False):
+        g = g.sort_values(["parameter", "snr"])
+        key = (
+            np.round(g[["bias", "std", "snr"]].to_numpy(float), 12).tobytes()
+            + "|".join(g["parameter"]).encode()
+        )
+        if key in seen:
+            first = seen[key]
+            rename[first] = rename.get(first, first) + " = " + str(series)
+            drop.append(str(series))
+        else:
+            seen[key] = str(series)
+    out = bias[~bias["series"].isin(drop)].copy()
+    out["series"] = out["series"].map(lambda s: rename.get(s, s))
+    return out
+
+
+def cell_stats(rows: Any) -> dict[str, Any]:
+    """Per-cell statistics the figures and tables need (the cell key includes ``snr_target``)."""
+    keys = ["method", "nonlinearity", "p", "delay", "sigma2", "snr_target"]
+    r = rows.copy()
+    for k in ("sigma2", "snr_target"):
+        r[k] = r[k].astype(float)
+    r["_s2"] = r["sigma2"].fillna(-1.0)
+    r["_st"] = r["snr_target"].fillna(-1.0)
+    gkeys = ["method", "nonlinearity", "p", "delay", "_s2", "_st"]
+    snr = (
+        r.drop_duplicates([*gkeys, "run"]).groupby(gkeys, dropna=False)["snr"].mean().rename("snr")
+    )
+    ok = r[r["status"] == "ok"]
+    fit = (
+        ok[ok["quantity"] == "fitness"]
+        .groupby(gkeys, dropna=False)["value"]
+        .agg(fitness_mean="mean", fitness_std="std", n="count")
+    )
+    fitness = fit.join(snr, how="left").reset_index()
+    fitness = fitness.merge(r[[*gkeys, *keys[4:]]].drop_duplicates(gkeys), on=gkeys, how="left")
+    fitness["facet"] = _facet(fitness)
+    par = ok[ok["quantity"].str.fullmatch(r"[ab]\d+")]
+    bias = (
+        par.groupby([*gkeys, "quantity"], dropna=False)
+        .agg(
+            true=("true", "first"),
+            mean=("value", "mean"),
+            std=("value", "std"),
+            n=("value", "count"),
+        )
+        .reset_index()
+        .rename(columns={"quantity": "parameter"})
+    )
+    bias["bias"] = bias["mean"] - bias["true"]
+    bias = bias.merge(snr.reset_index(), on=gkeys, how="left")
+    # oracles know the true values: no error to show. The mask is boolean even when ``bias`` is
+    # empty (an empty object mask would select no *columns* and lose them).
+    oracle = bias["method"].map(lambda m: method_info(m)["oracle"]).astype(bool)
+    bias = bias.loc[~oracle]
+    bias["facet"] = _facet(bias)
+    multi = bias["facet"].nunique() > 1
+    bias["series"] = bias["method"] + (" | " + bias["facet"] if multi else "")
+    bias = _merge_identical(bias)
+    sec = ok[ok["quantity"] == "seconds"].groupby("method")["value"].agg(["mean", "std"])
+    timing = sec.reset_index()
+    # ranking among blind methods, per cell
+    blind = [m for m in fitness["method"].unique() if not method_info(m)["oracle"]]
+    f = fitness[fitness["method"].isin(blind) & fitness["fitness_mean"].notna()].copy()
+    cell_key = ["nonlinearity", "p", "delay", "_s2", "_st"]
+    f["rank"] = f.groupby(cell_key, dropna=False)["fitness_mean"].rank(
+        ascending=False, method="average"
+    )
+    f["win"] = f["rank"] == 1.0
+    ranking = (
+        f.groupby("method")
+        .agg(
+            mean_rank=("rank", "mean"),
+            cells=("rank", "count"),
+            wins=("win", "sum"),
+            mean_fitness=("fitness_mean", "mean"),
+        )
+        .reset_index()
+        .sort_values("mean_rank")
+    )
+    return {"fitness": fitness, "bias": bias, "timing": timing, "ranking": ranking}
+
+
+#: The statuses of a run that produced no estimate, in the order the failures table shows them
+#: (other statuses met in the rows follow, sorted).
+NOT_OK = ("failed", "not-identifiable")
+#: The cell of a run, as the aggregated tables and the cell count key it.
+CELL_COLUMNS = ("nonlinearity", "p", "delay", "sigma2", "snr_target")
+
+
+def run_table(rows: Any) -> Any:
+    """One row per run and method (a run's status and error are the same in all its rows).
+
+    Parameters
+    ----------
+    rows : DataFrame
+        Tidy rows (:data:`hbench.bench.schema.TIDY_COLUMNS`).
+
+    Returns
+    -------
+    DataFrame
+        The first row of each run (keyed by every identifier column present), missing statuses
+        as ``"(none)"``.
+    """
+    from hbench.bench.schema import ID_COLUMNS
+
+    key = [c for c in ID_COLUMNS if c in rows.columns]
+    runs = rows.drop_duplicates(key).copy()
+    runs["status"] = runs["status"].astype(object).where(runs["status"].notna(), "(none)")
+    runs["status"] = runs["status"].astype(str)
+    return runs.reset_index(drop=True)
+
+
+def status_counts(rows: Any) -> dict[str, int]:
+    """Runs per status over all methods and cells.
+
+    Parameters
+    ----------
+    rows : DataFrame
+        Tidy rows (:data:`hbench.bench.schema.TIDY_COLUMNS`).
+
+    Returns
+    -------
+    dict of str -> int
+        ``{status: runs}``, most frequent first (a run is one method on one realisation).
+    """
+    counts = run_table(rows)["status"].value_counts()
+    return {str(k): int(v) for k, v in counts.items()}
+
+
+def _message(error: Any, width: int) -> str:
+    """An error on one line, cut to ``width`` characters (``...`` marks a cut)."""
+    text = "" if error is None or (isinstance(error, float) and math.isnan(error)) else str(error)
+    text = " ".join(text.split()) or "(no message)"
+    return text if len(text) <= width else text[: max(width - 3, 1)] + "..."
+
+
+def failure_table(rows: Any, messages: int = 3, width: int = 200) -> Any:
+    """Per method and cell with a run that produced no estimate: the status counts and why.
+
+    Parameters
+    ----------
+    rows : DataFrame
+        Tidy rows (:data:`hbench.bench.schema.TIDY_COLUMNS`).
+    messages : int
+        Distinct messages shown per method and cell, most frequent first (then in order of
+        appearance); the number of the others is given.
+    width : int
+        Characters kept of each message (a cut one ends in ``...``; the rows' ``error`` column
+        holds it whole).
+
+    Returns
+    -------
+    DataFrame
+        Columns ``method, nonlinearity, p, delay, sigma2, snr_target`` (``snr_target`` only if a
+        cell has one), ``runs``, ``ok``, one count column per status that is not ``ok``
+        (``failed``, ``not-identifiable``, then any other met), and ``messages``:
+        ``"<message> [<k> runs]; ..."`` from the runs' ``error`` column, ending in ``"(+<n> more
+        distinct messages)"`` when there are more than ``messages``. One row per (method, cell)
+        that has a run that is not ``ok``, methods and cells in order of appearance; empty
+        (same columns) when every run is ``ok``.
+    """
+    import pandas as pd
+
+    runs = run_table(rows)
+    for col in CELL_COLUMNS:
+        if col not in runs.columns:
+            runs[col] = math.nan
+    other = sorted(s for s in set(runs["status"]) if s != "ok" and s not in NOT_OK)
+    statuses = [*NOT_OK, *other]
+    cells = [c for c in CELL_COLUMNS if c != "snr_target" or runs["snr_target"].notna().any()]
+    columns = ["method", *cells, "runs", "ok", *statuses, "messages"]
+    # the level keyed as in cell_stats: sigma2 and snr_target, each missing as -1
+    runs["_s2"] = runs["sigma2"].astype(float).fillna(-1.0)
+    runs["_st"] = runs["snr_target"].astype(float).fillna(-1.0)
+    out = []
+    keys = ["method", "nonlinearity", "p", "delay", "_s2", "_st"]
+    for _, g in runs.groupby(keys, sort=False, dropna=False):
+        bad = g[g["status"] != "ok"]
+        if bad.empty:
+            continue
+        first = g.iloc[0]
+        counts = g["status"].value_counts()
+        # most frequent first; ties in order of appearance (most_common's sort is stable)
+        found = Counter(_message(e, width) for e in bad["error"]).most_common()
+        shown = [f"{m} [{k} run{'s' if k != 1 else ''}]" for m, k in found[:messages]]
+        if len(found) > messages:
+            shown.append(f"(+{len(found) - messages} more distinct messages)")
+        out.append(
+            {
+                **{c: first[c] for c in ("method", *cells)},
+                "runs": len(g),
+                "ok": int(counts.get("ok", 0)),
+                **{s: int(counts.get(s, 0)) for s in statuses},
+                "messages": "; ".join(shown),
+            }
+        )
+    return pd.DataFrame(out, columns=columns)
+
+
+# --------------------------------------------------------------------------- table files
+
+
+def _md_text(text: str) -> str:
+    """``text`` on one line for a Markdown table cell (``\\`` and ``|`` escaped)."""
+    return " ".join(text.split()).replace("\\", "\\\\").replace("|", r"\|")
+
+
+def _text_cells(table: Any, escape: Callable[[str], str]) -> Any:
+    """``table`` with ``escape`` applied to every text cell (numbers left alone)."""
+    import pandas as pd
+
+    out = table.copy()
+    for col in out.columns:
+        if out[col].dtype == object or pd.api.types.is_string_dtype(out[col].dtype):
+            out[col] = out[col].map(lambda v: escape(v) if isinstance(v, str) else v)
+    return out
+
+
+def write_table(
+    out: Path, name: str, table: Any, note: str = "", empty: str = "", wrap_last: bool = False
+) -> None:
+    """Write ``table`` as ``out/name.md`` and ``out/name.tex`` (booktabs).
+
+    Parameters
+    ----------
+    out : Path
+        The report folder.
+    name : str
+        Stem of the files (and the LaTeX caption ``hbench <name>``).
+    table : DataFrame
+        The table; its text cells are escaped for Markdown (``|``) and LaTeX
+        (:func:`hbench.tables.results.tex_escape`, in :func:`hbench.tables.results.to_latex`).
+    note : str
+        A line written above the Markdown table and as a LaTeX comment above the table.
+    empty : str
+        Why the table has no rows: said above the Markdown table and in a row spanning the LaTeX
+        table, when ``table`` is empty.
+    wrap_last : bool
+        Let the last column's text wrap in LaTeX (a ``p`` column; long messages).
+    """
+    from hbench.tables.results import column_spec, tex_escape, to_latex, to_markdown
+
+    lines = [line for line in (note, empty if table.empty else "") if line]
+    md = to_markdown(_text_cells(table, _md_text))
+    (out / f"{name}.md").write_text("".join(f"{_md_text(line)}\n\n" for line in lines) + md)
+    # to_latex escapes the text cells
+    tex = to_latex(table, caption=f"hbench {name}", label=f"tab:hbench-{name}")
+    ncols = len(table.columns)
+    if wrap_last and ncols:
+        spec = column_spec(table)
+        tex = tex.replace("{" + spec + "}", "{" + spec[:-1] + r"p{0.4\linewidth}}", 1)
+    if table.empty and empty:
+        span = rf"\multicolumn{{{ncols}}}{{p{{0.8\linewidth}}}}{{{tex_escape(empty)}}} \\"
+        tex = tex.replace("\\bottomrule", span + "\n\\bottomrule", 1)
+    if note:
+        tex = f"% {' '.join(note.split())}\n" + tex
+    (out / f"{name}.tex").write_text(tex)
+
+
+# --------------------------------------------------------------------------- HTML
+
+
+CSS = """
+body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:2em auto;
+max-width:1250px;color:#222;line-height:1.4;padding:0 1em}
+h1{font-size:1.6em}
+h2{font-size:1.25em;border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:2em}
+h3{font-size:1.05em}
+table{border-collapse:collapse;font-size:.82em;margin:.6em 0 1.2em}
+th,td{border-top:1px solid #ddd;padding:.25em .55em;text-align:right;white-space:nowrap}
+th{border-bottom:2px solid #888;border-top:2px solid #888;background:#f7f7f7}
+td:first-child,th:first-child{text-align:left}
+figure{margin:1em 0 2em}figure img{max-width:100%;border:1px solid #eee}
+figcaption{font-size:.85em;color:#444}
+pre{background:#f6f6f6;padding:.8em;overflow-x:auto;font-size:.78em;max-height:32em}
+.note{background:#fff8e0;border-left:4px solid #e0b000;padding:.4em .8em}
+.beyond{font-family:ui-monospace,Menlo,Consolas,monospace;font-size:.8em}
+#table-failures td:last-child{white-space:normal;text-align:left;min-width:24em}
+.scroll{max-width:100%;overflow-x:auto}
+details{margin:.4em 0 1em}summary{cursor:pointer;color:#245}
+.hidden-cols{font-size:.8em;color:#666;margin-top:-.8em}
+table.headline td{vertical-align:top;line-height:1.25}
+table.headline tbody th{text-align:left;background:none;border-bottom:none;
+border-top:1px solid #ddd;white-space:normal;min-width:7em;max-width:11em}
+table.headline td{padding:.25em .4em}
+table.headline .paper{color:#666;font-size:.9em}
+table.headline .diff{color:#345;font-size:.9em}
+table.headline td.win{background:#eef6ee}
+table.headline tr.bound th,table.headline tr.bound td{color:#777}
+"""
+
+
+def _esc(x: Any) -> str:
+    return html.escape(str(x), quote=True)
+
+
+def _empty_columns(table: Any) -> list[str]:
+    """Columns whose every cell is empty (nan, None or blank text)."""
+    out = []
+    for c in table.columns:
+        col = table[c]
+        if len(col) and all(
+            v is None
+            or (isinstance(v, str) and not v.strip())
+            or (isinstance(v, float) and math.isnan(v))
+            for v in col
+        ):
+            out.append(c)
+    return out
+
+
+def html_table(table: Any, floatfmt: str = ".4g", table_id: str | None = None) -> str:
+    """``table`` as HTML in a horizontally scrolling box; columns with no value are left out
+    (said under the table)."""
+    from hbench.tables.results import format_number
+
+    hidden = _empty_columns(table)
+    cols = [c for c in table.columns if c not in hidden]
+
+    def fmt(v: Any) -> str:
+        number = format_number(v, floatfmt)
+        return str(v) if number is None else number
+
+    ident = f' id="{_esc(table_id)}"' if table_id else ""
+    head = "".join(f"<th>{_esc(c)}</th>" for c in cols)
+    body = "".join(
+        "<tr>" + "".join(f"<td>{_esc(fmt(row[c]))}</td>" for c in cols) + "</tr>"
+        for _, row in table.iterrows()
+    )
+    note = (
+        f'<p class="hidden-cols">Empty columns not shown: {_esc(", ".join(map(str, hidden)))}.</p>'
+        if hidden
+        else ""
+    )
+    return (
+        f'<div class="scroll"><table{ident}><thead><tr>{head}</tr></thead>'
+        f"<tbody>{body}</tbody></table></div>{note}"
+    )
+
+
+def _fold(summary: str, inner: str, open_: bool = False) -> str:
+    """``inner`` folded in a ``<details>`` element titled ``summary``."""
+    return f"<details{' open' if open_ else ''}><summary>{_esc(summary)}</summary>{inner}</details>"
+
+
+#: Screen pixels per inch of a figure on the page (its text at 8 pt shows as ~14 px).
+SCREEN_PPI = 130
+
+
+def png_size(png: bytes) -> tuple[int, int, float]:
+    """``(width, height, dots per inch)`` from a PNG's IHDR and pHYs chunks (dpi 0 if unset)."""
+    import struct
+
+    width, height = struct.unpack(">II", png[16:24])
+    at = png.find(b"pHYs")
+    dpi = 0.0
+    if at > 0:
+        ppx, _, unit = struct.unpack(">IIB", png[at + 4 : at + 13])
+        dpi = ppx * 0.0254 if unit == 1 else 0.0
+    return width, height, dpi
+
+
+def html_figure(fig_id: str, png: bytes, caption: str) -> str:
+    """A figure with its PNG embedded, shown at :data:`SCREEN_PPI` of its print size."""
+    data = base64.b64encode(png).decode("ascii")
+    width, _, dpi = png_size(png)
+    shown = f' width="{round(width * SCREEN_PPI / dpi)}"' if dpi else ""
+    return (
+        f'<figure id="{_esc(fig_id)}"><img src="data:image/png;base64,{data}"{shown} '
+        f'alt="{_esc(caption)}"><figcaption>{_esc(caption)}</figcaption></figure>'
+    )
+
+
+# --------------------------------------------------------------------------- the report
+
+
+def _pick_examples(examples: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """One example per nonlinearity (the middle one by sigma^2 when there are several)."""
+    by: dict[str, list[Mapping[str, Any]]] = {}
+    for ex in examples:
+        by.setdefault(str(ex.get("nonlinearity", "?")), []).append(ex)
+    panels = []
+    for nl, exs in by.items():
+        exs = sorted(exs, key=lambda e: float(e.get("sigma2") or 0.0))
+        ex = exs[len(exs) // 2]
+        s2 = ex.get("sigma2")
+        title = f"σ² = {float(s2):g}" if s2 is not None else str(ex.get("cell", ""))
+        panels.append(
+            {
+                "nonlinearity": nl,
+                "title": title,
+                "x": ex["x"],
+                "U": ex["U"],
+                "gain": float(ex["gain"]),
+                "estimates": dict(ex["estimates"]),
+            }
+        )
+    return panels
+
+
+def _flatten(d: Any, prefix: str = "") -> dict[str, Any]:
+    """A nested mapping as ``{"a.b.c": leaf}`` (lists are leaves)."""
+    if not isinstance(d, Mapping):
+        return {prefix: d}
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        out.update(_flatten(v, f"{prefix}.{k}" if prefix else str(k)))
+    return out
+
+
+def provenance_block(prov: Sequence[tuple[Path, Mapping[str, Any]]]) -> tuple[dict, dict]:
+    """``(common, differing)``: the provenance entries every file shares (flattened keys), and
+    per key that differs, its value in each file (``created`` is left out: it always differs)."""
+    flat = [_flatten({k: v for k, v in d.items() if k != "created"}) for _, d in prov]
+    keys = list(dict.fromkeys(k for f in flat for k in f))
+    common: dict[str, Any] = {}
+    differing: dict[str, list[Any]] = {}
+    for k in keys:
+        values = [f.get(k) for f in flat]
+        texts = {json.dumps(v, sort_keys=True, default=str) for v in values}
+        if len(texts) == 1:
+            common[k] = values[0]
+        else:
+            differing[k] = values
+    return common, differing
+
+
+def _provenance_html(prov: Sequence[tuple[Path, Mapping[str, Any]]], run_dir: Path) -> str:
+    """One provenance block: what every job shares, then a table of what differs per file."""
+    if not prov:
+        return '<p class="note">No provenance.json found under the folder.</p>'
+    import pandas as pd
+
+    common, differing = provenance_block(prov)
+    created = sorted(str(d.get("created", "?")) for _, d in prov)
+    parts = [
+        f"<p>{len(prov)} provenance file(s), created {_esc(created[0])}"
+        + (f" to {_esc(created[-1])}" if len(created) > 1 else "")
+        + ". Shared by all:</p>",
+        "<details><summary>shared provenance (" + str(len(common)) + " entries)</summary>"
+        f"<pre>{_esc(json.dumps(common, indent=2, default=str))}</pre></details>",
+    ]
+    if differing:
+        table = pd.DataFrame(
+            {"file": [str(p.relative_to(run_dir)) for p, _ in prov]}
+            | {
+                k: [json.dumps(v, default=str) if isinstance(v, list | dict) else v for v in vs]
+                for k, vs in differing.items()
+            }
+        )
+        parts.append("<p>What differs between the files:</p>")
+        parts.append(
+            _fold(
+                f"{len(differing)} differing entries over {len(prov)} files",
+                html_table(table, table_id="provenance-differs"),
+                open_=len(prov) <= 12,
+            )
+        )
+    return "\n".join(parts)
+
+
+def _reproduction_html(run_dir: Path, out: Path) -> str:
+    """The paper comparison when ``reproduce.csv`` is present."""
+    import pandas as pd
+
+    from hbench.paper import reproduce as rp
+
+    csv = run_dir / "reproduce.csv"
+    if not csv.is_file():
+        return ""
+    frame = pd.read_csv(csv)
+    summary = rp.summarise(frame)
+    parts = [
+        '<section id="reproduction"><h2>Reproduction of the paper (Section 6)</h2>',
+        f"<p><b>{_esc(summary.line())}</b></p>",
+        "<p>z = (ours − paper) / SE with SE² = s²<sub>ours</sub>/n + s²<sub>paper</sub>/"
+        "n<sub>paper</sub> + u²/12 (u: the rounding unit of the printed number; "
+        "s<sub>paper</sub> = s<sub>ours</sub> where the paper prints no spread; Tables 1-2 "
+        "are single realisations, n = n<sub>paper</sub> = 1). Table 5: F_LSM = wang-lsm, "
+        "F0_LSM = oracle, F_INV = the LSM estimates in the direct inverse, "
+        "F0_INV = oracle-inv.</p>",
+    ]
+    summ = run_dir / "summary.txt"
+    if summ.is_file():
+        lines = summ.read_text().splitlines()[1:]  # the first line is the summary above
+        parts.append(f'<pre class="beyond">{_esc(chr(10).join(lines))}</pre>')
+    titles = {
+        "table4": "Table 4: parameters (mean ± std; b2 sign corrected)",
+        "snr": "SNR column",
+        "table5": "Table 5: fitness (%)",
+        "table1": "Table 1: V(na, τ) ×1e-7 (one realisation, σ² = 1e-3)",
+        "table2": "Table 2: Var Δw(l) ×1e-7 (same realisation)",
+    }
+    shown = rp.display_tables(frame)
+    for name in ("table4", "snr", "table5", "table1", "table2"):
+        if name in shown:
+            parts.append(f"<h3>{_esc(titles[name])}</h3>" + html_table(shown[name], table_id=name))
+    for fig in ("figure4", "figure5"):
+        png = run_dir / f"{fig}.png"
+        if png.is_file():
+            caption = {
+                "figure4": "Figure 4: controller output x(n) vs estimated inner signal "
+                "U(n) (one realisation, σ² = 1e-3)",
+                "figure5": "Figure 5: x(n) vs the true inner signal U(n)",
+            }[fig]
+            parts.append(html_figure(fig, png.read_bytes(), caption))
+    inv = run_dir / "investigation.csv"
+    if inv.is_file():
+        t = pd.read_csv(inv)
+        # the reproduction summary's columns; the report has always left out within2_after
+        cols = [c for c in rp.INVESTIGATION_COLUMNS if c in t.columns and c != "within2_after"]
+        parts.append(
+            "<h3>Investigation: alternatives against the defaults</h3>"
+            "<p>mean |z| over Tables 4 (parameters, SNR) and 5, before (defaults) and "
+            "after each single change; per-table columns after the change.</p>"
+            + html_table(
+                t[cols].sort_values("mean_abs_z_after"), floatfmt=".3g", table_id="investigation"
+            )
+        )
+    parts.append("</section>")
+    return "\n".join(parts)
+
+
+def write_summary(out: Path, run_dir: Path, rows: Any) -> tuple[Any, Any]:
+    """Write the headline ``summary.{csv,md,tex}`` and ``summary_bias.{csv,md,tex}`` into
+    ``out`` (:mod:`hbench.tables.summary`, rendered by :mod:`hbench.tables.headline`); the paper's
+    values come
+    from ``RUN_DIR/reproduce.csv`` where present. Returns the two tables."""
+    import pandas as pd
+
+    from hbench.tables import headline, summary
+    from hbench.tables.results import to_markdown
+
+    def bound(m: str) -> bool:
+        return bool(method_info(m)["oracle"])
+
+    paper_fit = paper_par = None
+    csv = run_dir / "reproduce.csv"
+    if csv.is_file():
+        paper_fit, paper_par = summary.paper_values(pd.read_csv(csv))
+    head = summary.summary(rows, bound, paper_fit)
+    bias = summary.bias_summary(rows, bound, paper_par)
+    head.to_csv(out / "summary.csv", index=False, float_format="%.10g")
+    (out / "summary.md").write_text(headline.fitness_markdown(head, method_label))
+    (out / "summary.tex").write_text(headline.fitness_latex(head, method_label))
+    bias.to_csv(out / "summary_bias.csv", index=False, float_format="%.10g")
+    (out / "summary_bias.md").write_text(to_markdown(_text_cells(bias, _md_text), ".4g"))
+    (out / "summary_bias.tex").write_text(headline.bias_latex(bias, method_label))
+    return head, bias
+
+
+def _with_summary(stats: Any, table: Any, columns: dict[str, Any], by: Sequence[str] = ()) -> Any:
+    """:func:`cell_stats`' ``stats`` with ``columns`` (name -> Series over ``table``) of a
+    headline table, matched by method, cell (and ``by``)."""
+    keys = ["method", "nonlinearity", "p", "delay", "_s2", "_st", *by]
+    t = table.assign(
+        _s2=table["sigma2"].astype(float).fillna(-1.0),
+        _st=table["snr_target"].astype(float).fillna(-1.0),
+        **columns,
+    )[[*keys, *columns]]
+    return stats.merge(t, on=keys, how="left")
+
+
+def _headline_html(head: Any, bias: Any) -> str:
+    """The section that opens the report: who wins each cell, with what confidence."""
+    from hbench.tables import headline, summary
+
+    parts = ['<section id="headline"><h2>Headline: who wins, with what confidence</h2>']
+    if head.empty:
+        parts.append('<p class="note">No ok run has a fitness: no headline table.</p>')
+    else:
+        parts += [
+            f"<p>Fitness F (%): mean ± half-width of its 95 % interval. {_esc(summary.METHOD_NOTE)}"
+            " Bold: the winner of the column where its lead is significant; <i>n.s.</i>: the "
+            "best mean's lead is not significant; <i>tie</i>: not significantly worse than the "
+            "best. Oracle bounds (grey) are not compared.</p>",
+            '<div class="scroll">'
+            + headline.fitness_html(head, method_label, "table-summary")
+            + "</div>",
+        ]
+    if not bias.empty:
+        parts.append(
+            _fold(
+                "Bias ± 95 % interval and RMSE of each parameter (blind methods)",
+                '<div class="scroll">'
+                + headline.bias_html(bias, method_label, "table-summary-bias")
+                + "</div>",
+            )
+        )
+    parts.append("</section>")
+    return "\n".join(parts)
+
+
+def _empty_reasons(none_ok: bool, status_line: str) -> dict[str, str]:
+    """Why each statistics table of the report may be empty (said where the table would be)."""
+    if none_ok:
+        why = (
+            f"No run produced an estimate (run status: {status_line}): this table is empty; "
+            "why, per method and cell: the failures table."
+        )
+        return dict.fromkeys(("fitness", "bias", "structure", "ranking", "timing"), why)
+    return {
+        "fitness": "No ok run has a fitness: this table is empty.",
+        "bias": "No ok run has parameter estimates (a1, a2, ..., b2, ...): this table is empty.",
+        "structure": "No ok run has structure estimates (na, nb, tau, delay): this table is empty.",
+        "ranking": "No blind method has a fitness in any cell: nothing to rank (oracles are "
+        "bounds, not ranked).",
+        "timing": "No ok run has a time: this table is empty.",
+    }
+
+
+def _failures_note(none_ok: bool, status_line: str) -> str:
+    """The line above the failures table."""
+    head = (
+        f"No run produced an estimate (run status: {status_line})."
+        if none_ok
+        else f"Some runs produced no estimate (run status: {status_line})."
+    )
+    return (
+        f"{head} Per method and cell: the runs that failed (the method raised) or were not "
+        "identifiable, and their distinct messages (most frequent first, with their number of "
+        "runs; the error column of the tidy rows holds every message whole)."
+    )
+
+
+def build_report(
+    run_dir: Path | str,
+    out: Path | str | None = None,
+    *,
+    rows: Any = None,
+    jobs: int = 1,
+    extra_figures: Sequence[Any] = (),
+    spread: str = "ci",
+) -> Path:
+    """Write the report of ``run_dir`` into ``out``; returns the path of ``report.html``.
+
+    ``spread`` is what the fitness figure's error bars show: ``"ci"`` the 95 % interval of the
+    mean, ``"std"`` one standard deviation over the runs.
+
+    ``rows`` (already in memory) skips reading ``rows.parquet``; ``jobs > 1`` renders the
+    figures in forked worker processes; ``extra_figures`` (:data:`hbench.report.figures.FigureSpec`)
+    are rendered in the same batch (the reproduction's Figures 4 and 5).
+    """
+    from hbench.report import beyond as report_beyond
+    from hbench.report import figures
+    from hbench.tables.results import aggregate, display_table, new_output_dir, structure
+
+    if spread not in figures.SPREADS:  # before any work
+        raise InputError(f"--spread must be one of {', '.join(figures.SPREADS)}, got {spread!r}")
+    run_dir = Path(run_dir)
+    if rows is None:
+        rows, files = load_rows(run_dir)
+    else:
+        files = [run_dir / "rows.parquet"]
+    if out is None:
+        out = run_dir / "report"
+        if out.exists():
+            out = new_output_dir(run_dir, "report")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+
+    stats = cell_stats(rows)
+    head, head_bias = write_summary(out, run_dir, rows)
+    # the interval's half-width and the paper's values for the figures
+    half = (head["fitness_ci_high"] - head["fitness_ci_low"]) / 2
+    stats["fitness"] = _with_summary(
+        stats["fitness"], head, {"fitness_ci": half, "paper": head["paper"]}
+    )
+    stats["bias"] = _with_summary(
+        stats["bias"],
+        head_bias,
+        {"paper_bias": head_bias["paper_bias"]},
+        by=["parameter"],
+    )
+    # as the renderings show them: SNR cells told apart (column snr_target), sorted by level
+    fitness_table, bias_table = (display_table(t) for t in aggregate(rows, level=True))
+    structure_table = display_table(structure(rows, level=True))
+    ranking = stats["ranking"]
+    timing = stats["timing"].rename(columns={"mean": "seconds_mean", "std": "seconds_std"})
+    failures = failure_table(rows)
+    for frame in (fitness_table, bias_table, structure_table, ranking, timing, failures):
+        frame["method"] = frame["method"].map(method_label)  # the label in place of the name
+    counts = status_counts(rows)
+    status_line = ", ".join(f"{k} {v}" for k, v in counts.items())
+    none_ok = counts.get("ok", 0) == 0
+    tables = {
+        "fitness": fitness_table,
+        "bias": bias_table,
+        "structure": structure_table,
+        "ranking": ranking,
+        "timing": timing,
+    }
+    if len(failures):
+        tables["failures"] = failures
+    empty = _empty_reasons(none_ok, status_line)
+    for name, table in tables.items():
+        note = _failures_note(none_ok, status_line) if name == "failures" else ""
+        write_table(
+            out, name, table, note=note, empty=empty.get(name, ""), wrap_last=name == "failures"
+        )
+    beyond = report_beyond.plan(rows, out, _series_label)
+    for name, table in (beyond.tables if beyond else {}).items():
+        write_table(out, name, table)
+
+    def missing(fig_id: str, what: str, reason: str) -> str:
+        why = "No run produced an estimate" if none_ok else reason
+        return f'<p class="note" id="no-{_esc(fig_id)}">{_esc(why)}: {_esc(what)}.</p>'
+
+    # the figures in page order: (has data, figure id, spec, caption, the note shown without)
+    examples = load_examples(run_dir)
+    plan = [
+        (
+            stats["fitness"]["fitness_mean"].notna().any(),
+            "fig-fitness-snr",
+            (
+                out / "fitness_snr",
+                "fitness_vs_snr",
+                (stats["fitness"], method_label),
+                {"spread": spread},
+            ),
+            f"Fitness (mean, error bars {figures.SPREADS[spread]}) against the mean SNR of "
+            "each cell, per method; the paper's values, where published, as hollow markers in "
+            "the method's colour (noise-free cells, with infinite SNR, are not drawn).",
+            missing("fig-fitness-snr", "no fitness against SNR to draw", "No ok run has a fitness"),
+        ),
+        (
+            len(stats["bias"]) > 0,
+            "fig-bias-std-snr",
+            (out / "bias_std_snr", "bias_std_vs_snr", (stats["bias"], _series_label), {}),
+            "Bias (mean − true) and standard deviation of each parameter against SNR "
+            "(b1 = 1 normalisation; parameters are dimensionless).",
+            missing(
+                "fig-bias-std-snr",
+                "no bias or std against SNR to draw",
+                "No ok run of a blind method has parameter estimates (oracles know the true "
+                "values)",
+            ),
+        ),
+        (
+            bool(examples),
+            "fig-xu",
+            (out / "xu", "xu_grid", (_pick_examples(examples), method_label), {}),
+            "x(n) against U(n), one realisation per nonlinearity: the true U, then each "
+            "method's estimate scaled by the true gain b1 (the fitness scaling).",
+            '<p class="note" id="no-examples">No examples.npz under this folder (sweeps do not '
+            "save signals): the x-U graphs per method are not drawn.</p>",
+        ),
+        (
+            len(stats["timing"]) > 0,
+            "fig-time",
+            (out / "time", "time_per_method", (stats["timing"], method_label), {}),
+            "Identification time per run: a batch's time divided by its runs (the runs of a "
+            "batch share one value), mean ± one std over the runs (so the spread between "
+            "batches, cells and chunks, each weighted by its runs).",
+            missing("fig-time", "no time per method to draw", "No ok run has a time"),
+        ),
+        (
+            len(ranking) > 0,
+            "fig-ranking",
+            (out / "ranking", "ranking", (ranking, method_label), {}),
+            "Mean rank of fitness per cell among the blind methods (1 = best; oracles are "
+            "bounds and are not ranked).",
+            missing(
+                "fig-ranking",
+                "no ranking to draw",
+                "No blind method has a fitness in any cell (oracles are bounds, not ranked)",
+            ),
+        ),
+    ]
+    planned: list[tuple[str, Any, str]] = []  # rendered together below
+    slots: list[int | str] = []  # in page order: an index into planned, or the note instead
+    for has, fig_id, spec, caption, note in plan:
+        if has:
+            slots.append(len(planned))
+            planned.append((fig_id, spec, caption))
+        else:
+            slots.append(note)
+    beyond_figures = beyond.figures if beyond else []
+    pngs = figures.render_many(
+        [*extra_figures, *(p[1] for p in planned), *(f[1] for f in beyond_figures)], jobs
+    )
+    pngs = pngs[len(extra_figures) :]
+    figs = [
+        html_figure(planned[s][0], pngs[s], planned[s][2]) if isinstance(s, int) else s
+        for s in slots
+    ]
+
+    methods = [str(m) for m in rows["method"].unique()]  # in order of appearance
+    recon = [m for m in methods if method_info(m)["reconstruction"]]
+    n_cells = rows.drop_duplicates(["nonlinearity", "p", "delay", "sigma2", "snr_target"]).shape[0]
+    intro = [
+        f"<p>Source folder: <code>{_esc(run_dir)}</code> ({len(files)} rows file(s), "
+        f"{len(rows)} tidy rows, {n_cells} cells, methods: "
+        f"{_esc(', '.join(method_label(m) for m in methods))}).</p>",
+        "<p>Run status: " + _esc(status_line) + ".</p>",
+    ]
+    if none_ok:
+        intro.append(
+            '<p class="note" id="no-estimates"><b>No run produced an estimate</b>: none of the '
+            f"{sum(counts.values())} runs ({_esc(status_line)}) of "
+            f"{_esc(', '.join(method_label(m) for m in methods))} has a fitness or parameter "
+            "estimates, so the figures and the statistics tables are empty. Why, per method "
+            "and cell: the table <i>Runs without an estimate</i> below.</p>"
+        )
+    if recon:
+        intro.append(
+            '<p class="note">' + _esc(", ".join(recon)) + " is a reconstruction: "
+            "its original algorithm is not available and parts of it are this project's "
+            "own (see its docstring); read its numbers as those of a faithful variant."
+            "</p>"
+        )
+    if len(failures):
+        intro += [
+            '<section id="failures"><h2>Runs without an estimate</h2>',
+            f"<p>{_esc(_failures_note(none_ok, status_line))}</p>",
+            html_table(failures, table_id="table-failures"),
+            "</section>",
+        ]
+    table_titles = {
+        "ranking": "Ranking (mean rank of fitness per cell)",
+        "timing": "Time per method",
+        "structure": "Structure hit rate (share of runs that found the true na, nb, tau, delay)",
+        "fitness": "Fitness per cell (%)",
+        "bias": "Bias per parameter",
+    }
+    folded = {"fitness", "bias", "structure"}  # long tables: folded, the headline sums them up
+    table_html = []
+    for name, title in table_titles.items():
+        table_html.append(f"<h3>{_esc(title)}</h3>")
+        if tables[name].empty:
+            table_html.append(f'<p class="note" id="no-table-{name}">{_esc(empty[name])}</p>')
+            continue
+        fmt = ".3g" if name in ("ranking", "timing", "structure") else ".4g"
+        block = html_table(tables[name], floatfmt=fmt, table_id=f"table-{name}")
+        if name in folded:
+            block = _fold(f"{len(tables[name])} rows", block)
+        table_html.append(block)
+    prov = load_provenance(run_dir)
+    page = [
+        "<!DOCTYPE html>",
+        '<html lang="en"><head><meta charset="utf-8">',
+        '<meta name="viewport" content="width=device-width, initial-scale=1">',
+        "<title>hbench report</title>",
+        f"<style>{CSS}</style></head><body>",
+        "<h1>hbench report</h1>",
+        *intro,
+        _headline_html(head, head_bias),
+        _reproduction_html(run_dir, out),
+        '<section id="figures"><h2>Figures</h2>',
+        *figs,
+        "</section>",
+        '<section id="tables"><h2>Tables</h2>',
+        "<p>Also written as Markdown and LaTeX (booktabs) files beside this page: "
+        + _esc(", ".join(f"{n}.md, {n}.tex" for n in ("summary", "summary_bias", *tables)))
+        + ".</p>",
+        *table_html,
+        "</section>",
+        beyond.html(pngs[len(planned) :]) if beyond else "",
+        '<section id="provenance"><h2>Provenance</h2>',
+        _provenance_html(prov, run_dir),
+        "</section>",
+        "</body></html>",
+    ]
+    path = out / "report.html"
+    atomic.write_text(path, "\n".join(page))
+    return path
+
+
+def _cmd(args: argparse.Namespace) -> int:
+    from hbench.cli import check_output
+
+    if args.out:  # before any work: a folder one can write in
+        check_output(args.out, "--out", folder=True)
+    jobs = max(1, min(2, len(os.sched_getaffinity(0))))
+    path = build_report(
+        Path(args.run_dir), Path(args.out) if args.out else None, jobs=jobs, spread=args.spread
+    )
+    print(path)
+    return 0
+
+
+def add_parser(subparsers: Any) -> argparse.ArgumentParser:
+    """Add ``hbench report`` to the CLI."""
+    p = subparsers.add_parser(
+        "report",
+        help="comparison report (HTML with figures, Markdown and LaTeX tables) from results",
+        description="Build a self-contained HTML report (figures embedded), Markdown and LaTeX "
+        "tables and PDF figures from the tidy rows under RUN_DIR (its rows.parquet, or every "
+        "**/rows.parquet below it).",
+    )
+    p.add_argument("run_dir", metavar="RUN_DIR", help="a sweep's or a reproduction's folder")
+    p.add_argument("--out", default=None, help="output folder (default RUN_DIR/report/)")
+    p.add_argument(
+        "--spread",
+        choices=("ci", "std"),
+        default="ci",
+        help="error bars of the fitness figure: the 95 %% interval of the mean (default) or "
+        "one std over the runs",
+    )
+    p.set_defaults(func=_cmd)
+    return p
