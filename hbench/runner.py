@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from hbench import tidy, workers
+from hbench import parallel, tidy
 from hbench.errors import InputError, describe
 from hbench.identifiers import Estimate, Identifier, IdentifyOptions, identify, run_status
 from hbench.metrics import fitnesses
@@ -174,7 +174,7 @@ def run_cell(
     example: dict[str, Any] = {}
     done = 0
     with batch_settings():  # one BLAS thread, restored afterwards (hbench.runtime)
-        chunks = workers.map_chunks(_run_chunk, work, pieces, jobs)
+        chunks = parallel.map_chunks(_run_chunk, work, pieces, jobs)
         for (_start, n), (frames, ex) in zip(pieces, chunks, strict=True):
             rows.extend(frames)
             if ex and not example:
