@@ -40,7 +40,7 @@ from typing import Any
 
 from hbench import kernels
 from hbench.errors import InputError
-from hbench.runtime import tune_allocator
+from hbench.runtime import limit_blas_threads, tune_allocator
 
 #: ``fn(work, start, n)``: computes runs ``start .. start + n - 1`` of a cell.
 ChunkFn = Callable[[Any, int, int], Any]
@@ -55,9 +55,7 @@ def _context() -> Any:
 def _start_worker(initializer: Callable[..., Any] | None, initargs: tuple[Any, ...]) -> None:
     """Every worker's start: one BLAS thread, the allocator tuned, log records left to the
     caller (no handler of the parent's), exit when the parent dies; then ``initializer``."""
-    from threadpoolctl import threadpool_limits
-
-    threadpool_limits(limits=1, user_api="blas")  # for the worker's life: the process is ours
+    limit_blas_threads()  # for the worker's life: the process is hbench's
     tune_allocator()
     logging.getLogger().handlers.clear()
     parent = mp.parent_process()

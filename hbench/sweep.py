@@ -145,15 +145,15 @@ def run(args: argparse.Namespace) -> int:
 
 def _launch(argv: Sequence[str]) -> int:
     """Run the Hydra app with ``argv`` (Hydra's own command line); return the exit status."""
-    from hbench import config, workers
+    from hbench import config, parallel
     from hbench.hydra_adapter import run_app
 
     root = logging.getLogger()
     saved = (root.level, list(root.handlers))
     try:
         # cells with jobs > 1 that run in this process (the basic launcher) share worker
-        # processes kept for the sweep instead of forking them per cell (hbench.workers)
-        with workers.kept_workers(), _unwritable_is_one_line():
+        # processes kept for the sweep instead of starting them per cell (hbench.parallel)
+        with parallel.kept_workers(), _unwritable_is_one_line():
             run_app(task, argv, config.CONF_DIR, "config")
     except SystemExit as exc:  # Hydra reports its own errors and exits
         code = exc.code
