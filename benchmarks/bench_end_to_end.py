@@ -1,10 +1,9 @@
 """End to end on the paper's example: simulate + wang-lsm + wang-iv + bai-fu + oracle + metrics +
 tidy rows, batched, against the naive baseline of ``naive.py`` in the same run.
 
-* ``test_end_to_end[jobs]``: :func:`hbench.bench.runner.run_cell` on 1000 runs in batches of 200
-  (the
-  default chunk), in one process (``jobs=1``), two forked worker processes (``jobs=2``, a fork
-  per cell) or workers kept for the scope (``2-kept``, :func:`hbench.bench.workers.kept_workers`, as
+* ``test_end_to_end[jobs]``: :func:`hbench.bench.runner.run_cell` on 1000 runs in batches of 200 (the
+  default chunk), in one process (``jobs=1``), this one and a worker process started per cell
+  (``jobs=2``) or kept for the scope (``2-kept``, :func:`hbench.bench.parallel.kept_workers`, as
   ``hbench sweep`` runs cells). Every round records its CPU seconds (this process and its reaped
   children) and page faults; the ``jobs=2`` cases split their speed-up into cores kept busy x one
   process's CPU per run over two's.
@@ -27,6 +26,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import multiprocessing
 import os
 import resource
 import subprocess
@@ -41,9 +41,8 @@ import numpy as np
 import pytest
 from pytest_benchmark.fixture import BenchmarkFixture
 
-from hbench.bench import workers
+from hbench import kernels, parallel
 from hbench.bench.runner import methods_from_names, run_cell
-from hbench.numerics import kernels
 from hbench.sim.simulate import Scenario
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -79,8 +78,7 @@ def _usage(pids: Iterable[int] = ()) -> tuple[float, int]:
 
 
 def _kept_pids() -> list[int]:
-    scope = workers._SCOPE
-    return [proc.pid for proc in scope.processes] if scope is not None else []
+    return [proc.pid for proc in multiprocessing.active_children()]
 
 
 @pytest.mark.parametrize(
@@ -89,8 +87,9 @@ def _kept_pids() -> list[int]:
 def test_end_to_end(
     benchmark: BenchmarkFixture, paper_scenario: Scenario, jobs: int, kept: bool
 ) -> None:
-    """``[2-kept]``: the cells inside :func:`hbench.bench.workers.kept_workers` (as ``hbench sweep``
-    runs them); the warm-up round forks the workers and is timed apart (``first_cell_seconds``)."""
+    """``[2-kept]``: the cells inside :func:`hbench.bench.parallel.kept_workers` (as ``hbench sweep``
+    runs them); the warm-up round starts the workers and is timed apart
+    (``first_cell_seconds``)."""
     runs = 1000
     methods = methods_from_names(METHODS)
     usage: list[tuple[float, int]] = []  # per round: CPU seconds, page faults
@@ -106,7 +105,7 @@ def test_end_to_end(
         usage.append((cpu1 - cpu0, flt1 - flt0))
         return res
 
-    with workers.kept_workers() if kept else contextlib.nullcontext():
+    with parallel.kept_workers() if kept else contextlib.nullcontext():
         res = benchmark.pedantic(cell, rounds=3, iterations=1, warmup_rounds=1)
     assert len(res.rows) > 0 and (res.rows["status"] == "ok").mean() > 0.99
     wall = benchmark.stats.stats.mean  # of the timed rounds, as usage[1:] (no warm-up)

@@ -464,30 +464,25 @@ def test_worker_processes_kept_for_the_sweep_give_the_same_bits(
     run_cli: RunCli, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """Two cells with ``jobs=2`` under the basic launcher share the workers kept for the sweep
-    (:func:`hbench.bench.workers.kept_workers`): the tables are those of ``jobs=1``."""
-    from hbench.bench import workers
+    (:func:`hbench.bench.parallel.kept_workers`): the tables are those of ``jobs=1``."""
+    from hbench.bench import parallel
 
     ov = ("noise.snr=5,20", "method=wang-lsm", "seed=7", *SMALL, "chunk=2")
     status, _, err = sweep(run_cli, tmp_path / "one", *ov)
     assert status == 0, err
 
-    def forbidden(*args: object) -> None:
-        raise AssertionError("a cell of the sweep forked its own workers")
+    started: list[tuple[object, ...]] = []
+    pool = parallel.pool
 
-    monkeypatch.setattr(workers, "_fork_for_cell", forbidden)
-    stats: list[dict[str, int]] = []
-    close = workers.KeptWorkers.close
+    def counted(workers: int, *args: object) -> object:
+        started.append((workers, *args))
+        return pool(workers, *args)
 
-    def closing(self: workers.KeptWorkers, terminate: bool = False) -> None:
-        stats.append(dict(self.stats))
-        close(self, terminate)
-
-    monkeypatch.setattr(workers.KeptWorkers, "close", closing)
+    monkeypatch.setattr(parallel, "pool", counted)
     status, _, err = sweep(run_cli, tmp_path / "two", *ov, "jobs=2")
     assert status == 0, err
     for name in ("fitness.csv", "bias.csv"):
         one, two = (tmp_path / d / name for d in ("one", "two"))
         assert len(one.read_text().splitlines()) > 1
         assert one.read_bytes() == two.read_bytes()
-    # 2 cells x 4 chunks of <= 2 runs: the kept workers computed 2 of each, forked once
-    assert stats[-1] == {"remote": 4, "forks": 1, "fallback": 0}
+    assert started == [(1,)]  # one pool of one worker for both cells, none per cell

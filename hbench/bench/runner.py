@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from hbench.bench import tidy, workers
+from hbench.bench import parallel, tidy
 from hbench.bench.metrics import fitnesses
 from hbench.bench.schema import ID_COLUMNS, TIDY_COLUMNS  # noqa: F401 - re-exported
 from hbench.errors import InputError, describe
@@ -134,12 +134,11 @@ def run_cell(
     keep_example : bool
         Keep run 0's x, true U and each method's U for plots.
     jobs : int
-        Processes computing the chunks: this one and ``jobs - 1`` worker processes, forked for
-        the cell, or kept between cells inside :func:`hbench.bench.workers.kept_workers` (faster for
-        many cells; see :mod:`hbench.bench.workers`). The rows are the same whatever ``jobs`` (but
-        for
-        the ``seconds`` quantity). With ``jobs > 1`` the cell is cut into a multiple of ``jobs``
-        chunks of near-equal size (at most ``chunk`` runs each).
+        Processes computing the chunks: this one and ``jobs - 1`` worker processes, started
+        for the cell, or kept between cells inside :func:`hbench.bench.parallel.kept_workers` (faster
+        for many cells; see :mod:`hbench.bench.parallel`). The rows are the same whatever ``jobs``
+        (but for the ``seconds`` quantity). With ``jobs > 1`` the cell is cut into a multiple
+        of ``jobs`` chunks of near-equal size (at most ``chunk`` runs each).
     method_timeout : float, optional
         Seconds a method may take on one chunk (:func:`time_limit`); past them its runs of the
         chunk are ``failed`` with "timed out". None: no limit.
@@ -175,7 +174,7 @@ def run_cell(
     example: dict[str, Any] = {}
     done = 0
     with batch_settings():  # one BLAS thread, restored afterwards (hbench.system.runtime)
-        chunks = workers.map_chunks(_run_chunk, work, pieces, jobs)
+        chunks = parallel.map_chunks(_run_chunk, work, pieces, jobs)
         for (_start, n), (frames, ex) in zip(pieces, chunks, strict=True):
             rows.extend(frames)
             if ex and not example:
@@ -208,8 +207,8 @@ def _pieces(runs: int, chunk: int, jobs: int) -> list[tuple[int, int]]:
 
 @dataclass
 class _Work:
-    """What every chunk of a cell needs (shared with workers forked for the cell, pickled once per
-    cell for kept ones: :mod:`hbench.bench.workers`)."""
+    """What every chunk of a cell needs (inherited by workers started for the cell, pickled with
+    each chunk for kept ones: :mod:`hbench.bench.parallel`)."""
 
     scenario: Scenario
     methods: dict[str, Identifier]
@@ -232,7 +231,7 @@ def time_limit(seconds: float | None) -> Iterator[None]:
     A ``SIGALRM`` timer: the previous handler and timer are restored when the block ends, so the
     process's state is as before. The limit is seen when the method runs Python code: a method
     stuck inside one long compiled call is stopped when that call returns. Needs the main
-    thread (where Hydra's launchers, the kept workers and loky run a job); elsewhere
+    thread (where Hydra's launchers, hbench's worker processes and loky run a job); elsewhere
     :class:`InputError`.
     """
     if not seconds:

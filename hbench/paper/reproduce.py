@@ -628,7 +628,8 @@ def run_levels(
     while_waiting: Callable[[], Any] | None = None,
     on_result: Callable[[LevelTask, tuple[Any, dict[str, Any], float]], Any] | None = None,
 ) -> list[tuple[Any, dict[str, Any], float]]:
-    """Run the tasks (in ``jobs`` forked worker processes when ``jobs > 1``), in task order;
+    """Run the tasks (in ``jobs`` worker processes of :func:`hbench.parallel.pool` when
+    ``jobs > 1``), in task order;
     ``while_waiting()`` runs in the parent meanwhile (e.g. an import the next step needs), then
     ``on_result(task, result)`` for each result as it comes in (e.g. a figure of one level
     drawn while the workers compute the others)."""
@@ -644,12 +645,12 @@ def run_levels(
                 on_result(task, res)
             out.append(res)
         return out
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures import as_completed
 
-    ctx = multiprocessing.get_context("fork")
+    from hbench.bench import parallel
+
     results: dict[int, tuple[Any, dict[str, Any], float]] = {}
-    with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
+    with parallel.pool(jobs) as pool:
         futures = {pool.submit(run_level, task): i for i, task in enumerate(tasks)}
         if while_waiting:
             while_waiting()

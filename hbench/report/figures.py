@@ -92,17 +92,16 @@ def _render(spec: FigureSpec) -> bytes:
 
 
 def render_many(specs: Sequence[FigureSpec], processes: int = 1) -> list[bytes]:
-    """Render and save every spec; PNG bytes in spec order. ``processes > 1`` forks workers."""
+    """Render and save every spec; PNG bytes in spec order. ``processes > 1``: in worker
+    processes of :func:`hbench.parallel.pool`."""
     if processes <= 1 or len(specs) <= 1:
         return [_render(s) for s in specs]
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
+    from hbench.bench import parallel
 
     warm_up()  # import once in the parent: the forked workers inherit it
-    ctx = multiprocessing.get_context("fork")
     # the costliest first, so that the workers finish together
     order = sorted(range(len(specs)), key=lambda i: -_COST.get(specs[i][1], 1))
-    with ProcessPoolExecutor(max_workers=min(processes, len(specs)), mp_context=ctx) as pool:
+    with parallel.pool(min(processes, len(specs))) as pool:
         done = list(pool.map(_render, [specs[i] for i in order]))
     out: list[bytes] = [b""] * len(specs)
     for i, png in zip(order, done, strict=True):

@@ -146,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _launch(argv: Sequence[str]) -> int:
     """Run the Hydra app with ``argv`` (Hydra's own command line); return the exit status."""
-    from hbench.bench import workers
+    from hbench.bench import parallel
     from hbench.sweep import config
     from hbench.sweep.hydra_adapter import run_app
 
@@ -154,8 +154,8 @@ def _launch(argv: Sequence[str]) -> int:
     saved = (root.level, list(root.handlers))
     try:
         # cells with jobs > 1 that run in this process (the basic launcher) share worker
-        # processes kept for the sweep instead of forking them per cell (hbench.bench.workers)
-        with workers.kept_workers(), _unwritable_is_one_line():
+        # processes kept for the sweep instead of starting them per cell (hbench.bench.parallel)
+        with parallel.kept_workers(), _unwritable_is_one_line():
             run_app(task, argv, config.CONF_DIR, "config")
     except SystemExit as exc:  # Hydra reports its own errors and exits
         code = exc.code

@@ -19,10 +19,10 @@ paper's example (1000 runs, 4 methods, one process, 2-core machine):
 (:func:`hbench.bench.runner.run_cell`) and restores the count afterwards. The allocator setting
 cannot
 be undone (glibc cannot restore its dynamic thresholds), so no library function makes it: the
-``hbench`` command applies it to its own process (:func:`hbench.cli.main`; the worker processes
-it forks inherit it) and to the launcher workers its sweeps start; a program that calls
-:func:`hbench.bench.runner.run_cell` itself opts in with :func:`tune_allocator`. It is skipped on
-other
+``hbench`` command applies it to its own process (:func:`hbench.cli.main`) and to the launcher
+workers its sweeps start, and every worker process of :func:`hbench.bench.parallel.pool` applies it to
+itself; a program that calls :func:`hbench.bench.runner.run_cell` itself opts in with
+:func:`tune_allocator`. It is skipped on other
 C libraries, and ``HBENCH_TUNE_MALLOC=0`` turns it off.
 """
 
@@ -76,6 +76,12 @@ def _thread_pools() -> Any:
     from threadpoolctl import ThreadpoolController
 
     return ThreadpoolController()
+
+
+def limit_blas_threads() -> None:
+    """One BLAS thread for the rest of the process: for a worker process that hbench starts
+    (:func:`hbench.bench.parallel.pool`), never for a caller's process."""
+    _thread_pools().limit(limits=1, user_api="blas")
 
 
 @contextlib.contextmanager
