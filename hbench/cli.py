@@ -118,9 +118,9 @@ def _cmd_plugins(args: argparse.Namespace) -> int:
             print("  (none)")
         for e in entries:
             print(f"  {e['name']:<22} {e['source']:<24} {e['object']}")
-    from hbench.numerics import kernels
+    from hbench.bench import kernel_status
 
-    print(f"kernels: {kernels.status()}")
+    print(f"kernels: {kernel_status.status()}")
     return 0
 
 

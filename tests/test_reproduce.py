@@ -14,6 +14,7 @@ import pytest
 from hbench import cli
 from hbench.bench.runner import TIDY_COLUMNS
 from hbench.paper import reproduce as rp
+from hbench.tables import published as pub
 from tests.helpers import BIAS_COLUMNS, FITNESS_COLUMNS, HAS_PDFLATEX, NO_PDFLATEX, compile_tex
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -39,11 +40,11 @@ N_CELLS = {1: 50, 2: 5, 4: 42, 5: 24}
 def test_package_data_is_declared():
     conf = tomllib.loads((ROOT / "pyproject.toml").read_text())
     assert "data/*" in conf["tool"]["setuptools"]["package-data"]["hbench"]
-    assert (ROOT / "hbench" / "paper" / "paper_tables.json").is_file()
+    assert (ROOT / "hbench" / "data" / "paper_tables.json").is_file()
 
 
 def test_paper_cells_typed_with_the_notes_corrections():
-    cells = rp.paper_cells()
+    cells = pub.paper_cells()
     counts = {t: sum(c.table == t for c in cells) for t in N_CELLS}
     assert counts == N_CELLS
     t4 = {(c.row, c.column, c.method): c for c in cells if c.table == 4}
@@ -76,7 +77,7 @@ def test_paper_cells_typed_with_the_notes_corrections():
     ],
 )
 def test_parse_printed(text, value, unit):
-    v, u = rp.parse_printed(text)
+    v, u = pub.parse_printed(text)
     assert v == value
     assert u == pytest.approx(unit)
 
@@ -86,22 +87,22 @@ def test_parse_printed(text, value, unit):
 
 def test_z_score_known_values():
     # SE = sqrt(0.2^2/100 + 0.2^2/100) = 0.028284; (1.1 - 1.0) / SE = 3.5355
-    assert rp.z_score(1.1, 0.2, 100, 1.0, 0.2, 100) == pytest.approx(3.5355339, rel=1e-6)
+    assert pub.z_score(1.1, 0.2, 100, 1.0, 0.2, 100) == pytest.approx(3.5355339, rel=1e-6)
     # no published std: the paper's spread is taken to be ours
-    assert rp.z_score(1.1, 0.2, 100, 1.0, math.nan, 100) == pytest.approx(3.5355339, rel=1e-6)
+    assert pub.z_score(1.1, 0.2, 100, 1.0, math.nan, 100) == pytest.approx(3.5355339, rel=1e-6)
     # different spreads and counts: SE = sqrt(0.3^2/25 + 0.1^2/100) = 0.0608276
-    assert rp.z_score(0.9, 0.3, 25, 1.0, 0.1, 100) == pytest.approx(-0.1 / 0.0608276, rel=1e-6)
+    assert pub.z_score(0.9, 0.3, 25, 1.0, 0.1, 100) == pytest.approx(-0.1 / 0.0608276, rel=1e-6)
     # single realisations (Tables 1, 2): SE = sqrt(2) s
-    assert rp.z_score(3.0, 1.0, 1, 1.0, math.nan, 1) == pytest.approx(2 / math.sqrt(2))
+    assert pub.z_score(3.0, 1.0, 1, 1.0, math.nan, 1) == pytest.approx(2 / math.sqrt(2))
     # rounding of the printed number: SE = u / sqrt(12) when nothing else varies
-    assert rp.z_score(1.0001, 0.0, 10, 1.0, 0.0, 1, unit=1e-4) == pytest.approx(
+    assert pub.z_score(1.0001, 0.0, 10, 1.0, 0.0, 1, unit=1e-4) == pytest.approx(
         1e-4 / (1e-4 / math.sqrt(12))
     )
-    assert math.isnan(rp.z_score(math.inf, 0.0, 10, math.inf, 0.0, 1))
-    assert math.isnan(rp.z_score(1.0, 0.0, 10, 1.0, 0.0, 1, unit=0.0))  # SE = 0: undefined
-    assert math.isnan(rp.z_score(1.0, math.nan, 1, 2.0, math.nan, 1, unit=0.0))
+    assert math.isnan(pub.z_score(math.inf, 0.0, 10, math.inf, 0.0, 1))
+    assert math.isnan(pub.z_score(1.0, 0.0, 10, 1.0, 0.0, 1, unit=0.0))  # SE = 0: undefined
+    assert math.isnan(pub.z_score(1.0, math.nan, 1, 2.0, math.nan, 1, unit=0.0))
     # one run of ours (no spread): the published spread stands for both
-    assert rp.z_score(1.1, math.nan, 1, 1.0, 0.1, 100) == pytest.approx(0.1 / math.sqrt(0.0101))
+    assert pub.z_score(1.1, math.nan, 1, 1.0, 0.1, 100) == pytest.approx(0.1 / math.sqrt(0.0101))
 
 
 def _frame(zs):
@@ -125,7 +126,7 @@ def _frame(zs):
 
 
 def test_summary_share_and_beyond_cells():
-    s = rp.summarise(_frame([0.5, -1.9, 2.0, 2.1, -3.0, math.nan]))
+    s = pub.summarise(_frame([0.5, -1.9, 2.0, 2.1, -3.0, math.nan]))
     assert (s.scored, s.within, s.unscored) == (5, 3, 1)
     assert s.share == pytest.approx(0.6)
     assert [c["z"] for c in s.beyond] == [-3.0, 2.1]  # largest |z| first, exactly the cells
@@ -136,7 +137,7 @@ def test_summary_share_and_beyond_cells():
 
 
 def test_summary_with_nothing_beyond():
-    s = rp.summarise(_frame([0.1, -0.2]))
+    s = pub.summarise(_frame([0.1, -0.2]))
     assert s.beyond == [] and s.within == 2
     assert "beyond |z|" not in s.text()
 
@@ -263,7 +264,7 @@ def test_display_table_headers_agree_with_their_cells(tmp_path):
         ],
         columns=CONTRACT_COLUMNS,
     )
-    rp.write_display_tables(frame, tmp_path, realisations=20)
+    pub.write_display_tables(frame, tmp_path, realisations=20)
     for name in ("table1", "table2", "table4"):
         header, body = _header_and_body((tmp_path / f"{name}.md").read_text())
         assert ("mean ± std" in header) == ("±" in body), (name, header)
@@ -414,7 +415,7 @@ def test_reproduce_csv_is_the_contract(reproduced):
 def test_summary_line_printed_and_saved(reproduced):
     d = reproduced[1][0]
     frame = pd.read_csv(d / "reproduce.csv")
-    s = rp.summarise(frame)
+    s = pub.summarise(frame)
     saved = (d / "summary.txt").read_text()
     assert saved.splitlines()[0] == s.line()
     assert s.line() in reproduced[2]
