@@ -14,6 +14,9 @@ from __future__ import annotations
 import ast
 import importlib
 import re
+import subprocess
+import sys
+import tomllib
 import warnings
 from pathlib import Path
 
@@ -226,3 +229,38 @@ def test_hbench_plugins_and_benchmarks_import_the_new_paths_only():
         if bad:
             found[str(path.relative_to(REPO))] = sorted(bad)
     assert found == {}
+
+
+def _lint_imports(*args: str) -> subprocess.CompletedProcess:
+    """``lint-imports`` (import-linter, the dev extra) run on the repository."""
+    pytest.importorskip("importlinter")
+    command = Path(sys.executable).with_name("lint-imports")
+    return subprocess.run(
+        [str(command), "--no-cache", *args],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+
+
+def test_the_import_contracts_are_kept():
+    """The layers, independence and no-plugin contracts of ``pyproject.toml``."""
+    done = _lint_imports()
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "0 broken" in done.stdout
+
+
+def test_a_broken_contract_fails(tmp_path):
+    """The check can fail: the same layers upside down break."""
+    project = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["importlinter"]
+    layers = next(c for c in project["contracts"] if c["type"] == "layers")["layers"]
+    config = tmp_path / "upside-down.ini"
+    config.write_text(
+        "[importlinter]\nroot_package = hbench\n\n[importlinter:contract:upside-down]\n"
+        "name = upside down\ntype = layers\ncontainers = hbench\nlayers =\n"
+        + "".join(f"    {layer}\n" for layer in reversed(layers))
+    )
+    done = _lint_imports("--config", str(config))
+    assert done.returncode == 1, done.stdout + done.stderr
+    assert "upside down BROKEN" in done.stdout

@@ -1435,8 +1435,8 @@ def reproduce(
 
 
 def _cmd(args: argparse.Namespace) -> int:
-    from hbench.cli import check_output
     from hbench.sim.scenarios import parse_value
+    from hbench.system.writable import check_output
 
     if args.out is not None:  # before any work: a folder one can write in
         check_output(args.out, "--out", folder=True)

@@ -996,7 +996,7 @@ def build_report(
 
 
 def _cmd(args: argparse.Namespace) -> int:
-    from hbench.cli import check_output
+    from hbench.system.writable import check_output
 
     if args.out:  # before any work: a folder one can write in
         check_output(args.out, "--out", folder=True)

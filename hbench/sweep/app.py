@@ -288,7 +288,7 @@ def validate(overrides: Sequence[str], multirun: bool = False, launch: bool = Tr
         first = [v[0] for v in axes.values()]
         base = compose_checked(first)
         if launch:  # Hydra's resolved output folder (out=, hydra.run.dir=, hydra.sweep.dir=)
-            from hbench.cli import check_output
+            from hbench.system.writable import check_output
 
             if base.get("out") is not None and not str(base.out).strip():
                 raise InputError(
