@@ -522,3 +522,18 @@ def test_every_latex_table_of_the_reproduction_compiles(reproduced):
     assert {"table5.tex", "summary.tex", "summary_bias.tex"} <= {f.name for f in files}
     done = compile_tex(folders[0], files)
     assert done.returncode == 0, done.stdout[-3000:]
+
+
+def test_the_alternatives_are_data_each_one_change_from_the_defaults():
+    """``hbench/data/paper_alternatives.json``: unique labels, every alternative differs from the
+    defaults, and each builds a scenario (its keys are the scenario's)."""
+    from hbench.sim import scenarios
+
+    data = json.loads((ROOT / "hbench" / "data" / "paper_alternatives.json").read_text())
+    entries = data["alternatives"]
+    alternatives = pi.alternatives()
+    assert [a.label for a in alternatives] == [e["label"] for e in entries]
+    assert len({a.label for a in alternatives}) == len(alternatives)
+    assert all(a.describe() != pl.Config().describe() | {"label": a.label} for a in alternatives)
+    for a in alternatives:
+        scenarios.build(pl.scenario_spec(a, pl.TYPICAL_LEVEL))

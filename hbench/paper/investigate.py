@@ -5,6 +5,7 @@ and which alternative moves which cell toward the paper.
 
 from __future__ import annotations
 
+import json
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -32,260 +33,34 @@ from hbench.tables.published import (
 
 
 def alternatives() -> list[Config]:
-    """The alternatives ``--investigate`` tests, one change each against the defaults."""
+    """The alternatives ``--investigate`` tests, one change each against the defaults.
+
+    Read from ``hbench/data/paper_alternatives.json``: each entry holds a :class:`Config`'s
+    ``label``, ``group``, ``description`` and the fields it changes; ``overrides`` are dotted
+    scenario keys, ``reference_changes`` keys changed in the paper's reference
+    (:data:`hbench.sim.scenarios.PAPER_SECTION6`), ``reference`` a whole reference of its own.
+
+    Returns
+    -------
+    list of Config
+        The alternatives in the file's order.
+    """
     import copy
+    from importlib import resources
 
-    base = Config()
-    rbs = copy.deepcopy(_paper_reference())
-
-    def ref(**kw: Any) -> tuple[tuple[str, Any], ...]:
-        return tuple({**rbs, **kw}.items())
-
-    return [
-        replace(
-            base,
-            label="noise-foh",
-            group="noise discretisation",
-            description="noise filter by first-order hold",
-            overrides=(("noise.method", "foh"),),
-        ),
-        replace(
-            base,
-            label="noise-impulse",
-            group="noise discretisation",
-            description="noise filter by impulse invariance",
-            overrides=(("noise.method", "impulse"),),
-        ),
-        replace(
-            base,
-            label="noise-bilinear",
-            group="noise discretisation",
-            description="noise filter by Tustin (bilinear)",
-            overrides=(("noise.method", "bilinear"),),
-        ),
-        replace(
-            base,
-            label="rbs-ideal",
-            group="reference",
-            description="RBS band [0, 0.5] by an ideal (FFT) filter instead of Butterworth",
-            reference=ref(filter="ideal"),
-        ),
-        replace(
-            base,
-            label="rbs-band-0.25",
-            group="reference",
-            description="RBS band [0, 0.25] x Nyquist (the stated band halved)",
-            reference=ref(band=[0.0, 0.25]),
-        ),
-        replace(
-            base,
-            label="rbs-band-0.3",
-            group="reference",
-            description="RBS band [0, 0.3] x Nyquist (fitted to the SNR column)",
-            reference=ref(band=[0.0, 0.3]),
-        ),
-        replace(
-            base,
-            label="rbs-fixed",
-            group="reference",
-            description="one reference for all runs (per_run false)",
-            reference=ref(per_run=False),
-        ),
-        replace(
-            base,
-            label="prbs-hold2",
-            group="reference",
-            description="PRBS (10 bits) held 2 periods: idinput's PRBS reading of band [0, 0.5]",
-            reference=(("name", "prbs"), ("nbits", 10), ("hold", 2)),
-        ),
-        replace(
-            base,
-            label="prbs-hold3",
-            group="reference",
-            description="PRBS (10 bits) held 3 periods",
-            reference=(("name", "prbs"), ("nbits", 10), ("hold", 3)),
-        ),
-        replace(
-            base,
-            label="rbs-band-0.25-amplitude-0.9",
-            group="reference",
-            description="RBS band [0, 0.25] x Nyquist, values +-0.9 (fitted to Table 2 read "
-            "swapped and the SNR column)",
-            reference=ref(band=[0.0, 0.25], amplitude=0.9),
-        ),
-        replace(
-            base,
-            label="rbs-amplitude-1.6",
-            group="reference",
-            description="RBS [0, 0.5] with values +-1.6 (diagnostic: power, not spectrum)",
-            reference=ref(amplitude=1.6),
-        ),
-        replace(
-            base,
-            label="eq15-real",
-            group="eq. (15) without a real root",
-            description="the complex roots' real part 1/g11 instead of s2 (the discriminant "
-            "clipped in the stable form)",
-            eq15="real",
-        ),
-        replace(
-            base,
-            label="eq15-modulus",
-            group="eq. (15) without a real root",
-            description="the complex roots' modulus sqrt(s2/g11) (compensated residual 2 s2) "
-            "instead of s2",
-            eq15="modulus",
-        ),
-        replace(
-            base,
-            label="eq15-zero",
-            group="eq. (15) without a real root",
-            description="no compensation (sigma^2 = 0) instead of s2",
-            eq15="zero",
-        ),
-        replace(
-            base,
-            label="table2-swapped",
-            group="Table 2",
-            description="Table 2's rows l = 1 and l = 2 read exchanged",
-            table2="swapped",
-        ),
-        replace(
-            base,
-            label="fitness-ls",
-            group="fitness scaling",
-            description="estimate scaled by least squares instead of the true gain",
-            fitness="ls",
-        ),
-        replace(
-            base,
-            label="fitness-ls-affine",
-            group="fitness scaling",
-            description="least-squares scale and offset",
-            fitness="ls-affine",
-        ),
-        replace(
-            base,
-            label="snr-power",
-            group="SNR definition",
-            description="SNR as a power ratio ||y0||^2/||v||^2",
-            snr="power",
-        ),
-        replace(
-            base,
-            label="snr-db",
-            group="SNR definition",
-            description="SNR in dB, 20 log10(||y0||/||v||)",
-            snr="db",
-        ),
-        replace(
-            base,
-            label="warmup-100s",
-            group="initial state",
-            description="100 s simulated first and discarded (no start-up transient)",
-            warmup=100.0,
-        ),
-        replace(
-            base,
-            label="backlash-centred",
-            group="initial state",
-            description="backlash starts centred on its first input (u0 = None)",
-            overrides=(("nonlinearity.u0", None),),
-        ),
-        replace(
-            base,
-            label="controller-delay1",
-            group="loop",
-            description="one slow sample of computational delay in the controller",
-            overrides=(("controller.delay", 1),),
-        ),
-        replace(
-            base,
-            label="unpooled",
-            group="method",
-            description="A from phase p alone (pooled false; Section 3.2's l = p)",
-            pooled=False,
-        ),
-        replace(
-            base,
-            label="selected-per-run",
-            group="method",
-            description="structure (na, tau, nb) selected in every run",
-            structure="selected",
-        ),
-        replace(
-            base,
-            label="paper-steps-ii-iv",
-            group="method",
-            description="the LSM rows and F_LSM from wang: A by integrated AIC, b by V_EIV "
-            "between the LSM and the IVM (the paper's steps ii and iv)",
-            lsm="wang",
-        ),
-        replace(
-            base,
-            label="paper-step-ii",
-            group="method",
-            description="step (ii) alone: A by integrated AIC between the LSM and the IVM, b "
-            "from the LSM",
-            lsm="wang-step-ii",
-        ),
-        replace(
-            base,
-            label="paper-step-iv",
-            group="method",
-            description="step (iv) alone: A from the LSM, b_l by V_EIV between the LSM and the IVM",
-            lsm="wang-step-iv",
-        ),
-        replace(
-            base,
-            label="f-inv-bai-fu",
-            group="method",
-            description="F_INV from bai-fu (OLS A and B, direct inverse)",
-            f_inv="bai-fu",
-        ),
-        # the method choices again with the reference that matches the SNR column, so that
-        # their own effect is not hidden behind the reference's
-        replace(
-            base,
-            label="rbs-band-0.3+unpooled",
-            group="combined",
-            description="band [0, 0.3] and A from phase p alone",
-            reference=ref(band=[0.0, 0.3]),
-            pooled=False,
-        ),
-        replace(
-            base,
-            label="rbs-band-0.3+f-inv-bai-fu",
-            group="combined",
-            description="band [0, 0.3] and F_INV from bai-fu",
-            reference=ref(band=[0.0, 0.3]),
-            f_inv="bai-fu",
-        ),
-        replace(
-            base,
-            label="rbs-band-0.3+noise-foh",
-            group="combined",
-            description="band [0, 0.3] and the noise filter by first-order hold",
-            reference=ref(band=[0.0, 0.3]),
-            overrides=(("noise.method", "foh"),),
-        ),
-        replace(
-            base,
-            label="rbs-band-0.25-amplitude-0.9+table2-swapped",
-            group="combined",
-            description="band [0, 0.25], values +-0.9, and Table 2's l = 1, 2 read exchanged",
-            reference=ref(band=[0.0, 0.25], amplitude=0.9),
-            table2="swapped",
-        ),
-        replace(
-            base,
-            label="rbs-band-0.3+warmup-100s",
-            group="combined",
-            description="band [0, 0.3] and a 100 s warm-up discarded",
-            reference=ref(band=[0.0, 0.3]),
-            warmup=100.0,
-        ),
-    ]
+    text = resources.files("hbench").joinpath("data", "paper_alternatives.json").read_text("utf-8")
+    out = []
+    for entry in json.loads(text)["alternatives"]:
+        fields = dict(entry)
+        if "overrides" in fields:
+            fields["overrides"] = tuple(fields["overrides"].items())
+        if "reference_changes" in fields:
+            changes = fields.pop("reference_changes")
+            fields["reference"] = tuple({**copy.deepcopy(_paper_reference()), **changes}.items())
+        elif "reference" in fields:
+            fields["reference"] = tuple(fields["reference"].items())
+        out.append(replace(Config(), **fields))
+    return out
 
 
 def _paper_reference() -> dict[str, Any]:
