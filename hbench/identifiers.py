@@ -1,5 +1,5 @@
 """The public path of :mod:`hbench.ident.identifiers` for plugins: every name of that module,
-under this name too (no warning: plugins may keep importing it from here)."""
+under this name too (a stable name for plugins, without a warning)."""
 
 from typing import Any
 

@@ -1,12 +1,12 @@
-"""hbench's layout: modules grouped by concern, old module names kept as faces, no import cycle.
+"""hbench's layout: modules grouped by concern, top-level names as faces, no import cycle.
 
-The modules live in subpackages by what they do (``hbench.model``, ``hbench.sim``, ...). Each old
-top-level name still imports: the names plugins use (``hbench.identifiers``, ``hbench.polyphase``,
-``hbench.conformance``, ``hbench.records``) are public faces without a warning; every other old
-name is deprecated, and reading a name from it warns with the new path. hbench's own modules, the
-plugins and the benchmarks import the new paths only. The import graph among hbench's modules,
-imports inside functions included, has no cycle; the layers are checked by import-linter
-(``lint-imports``, contracts in ``pyproject.toml``).
+The modules live in subpackages by what they do (``hbench.model``, ``hbench.sim``, ...). Each
+top-level module name imports too: the names plugins use (``hbench.identifiers``,
+``hbench.polyphase``, ``hbench.conformance``, ``hbench.records``) are public faces without a
+warning; every other top-level name is deprecated, and reading a name from it warns with the
+package path. hbench's own modules, the plugins and the benchmarks import the package paths only.
+The import graph among hbench's modules, imports inside functions included, has no cycle; the
+layers are checked by import-linter (``lint-imports``, contracts in ``pyproject.toml``).
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ import hbench
 CORE = Path(hbench.__file__).parent
 REPO = CORE.parent
 
-#: Old module name -> its module now.
+#: Top-level module name -> the module in its package.
 MOVED = {
     "hbench.plants": "hbench.model.plants",
     "hbench.controllers": "hbench.model.controllers",
@@ -65,9 +65,9 @@ MOVED = {
     "hbench.callbacks": "hbench.sweep.callbacks",
     "hbench.hydra_adapter": "hbench.sweep.hydra_adapter",
 }
-#: The old names plugins import: faces without a warning.
+#: The top-level names plugins import: faces without a warning.
 PUBLIC = {"hbench.identifiers", "hbench.polyphase", "hbench.conformance", "hbench.records"}
-#: Old names that are now packages: only the former module's names are deprecated there.
+#: Top-level names that are packages: only the app's or builder's names are deprecated there.
 PACKAGES = {"hbench.report", "hbench.sweep"}
 
 
@@ -107,8 +107,8 @@ def test_a_public_face_serves_its_module_without_a_warning(old):
 def test_a_package_imports_its_submodules_without_a_warning():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        from hbench.report import beyond, build, figures, style  # noqa: F401
-        from hbench.sweep import app, callbacks, config, hydra_adapter  # noqa: F401
+        from hbench.report import beyond, build, elements, figures, style  # noqa: F401
+        from hbench.sweep import app, callbacks, config, hydra_adapter, jobs  # noqa: F401
 
 
 def _modules() -> dict[str, Path]:
@@ -219,7 +219,7 @@ def test_hbench_plugins_and_benchmarks_import_the_new_paths_only():
     for path in _sources():
         tree = ast.parse(path.read_text(), filename=str(path))
         bad = {name for name in imports(path, "hbench") if name in old}
-        for node in ast.walk(tree):  # a name of a former module read from its package
+        for node in ast.walk(tree):  # a module's name read from its package
             if isinstance(node, ast.ImportFrom) and node.module in PACKAGES:
                 bad |= {
                     f"{node.module}.{a.name}"

@@ -1,12 +1,14 @@
 """The comparison report: HTML, LaTeX and PDF, its figures and their style, and the section on
 methods beyond the paper.
 
-Reading a name of the former module ``hbench.report`` from the package (``hbench.report.NAME``) is
-deprecated: it warns and comes from :mod:`hbench.report.build`.
+Reading a name of :mod:`hbench.report.build` from the package itself (``hbench.report.NAME``) is
+deprecated: it warns and comes from there.
 """
 
-from hbench._moved import forward
+import pkgutil
+
+from hbench._deprecated import forward
 
 __getattr__ = forward(
-    __name__, "hbench.report.build", submodules=("build", "beyond", "figures", "style")
+    __name__, "hbench.report.build", submodules=[m.name for m in pkgutil.iter_modules(__path__)]
 )

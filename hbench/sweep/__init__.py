@@ -1,12 +1,14 @@
 """``hbench sweep``: the Hydra app (one job = one cell), its validated configuration, the callbacks
 that aggregate tables, and the adapter to Hydra.
 
-Reading a name of the former module ``hbench.sweep`` from the package (``hbench.sweep.NAME``) is
-deprecated: it warns and comes from :mod:`hbench.sweep.app`.
+Reading a name of :mod:`hbench.sweep.app` from the package itself (``hbench.sweep.NAME``) is
+deprecated: it warns and comes from there.
 """
 
-from hbench._moved import forward
+import pkgutil
+
+from hbench._deprecated import forward
 
 __getattr__ = forward(
-    __name__, "hbench.sweep.app", submodules=("app", "config", "callbacks", "hydra_adapter")
+    __name__, "hbench.sweep.app", submodules=[m.name for m in pkgutil.iter_modules(__path__)]
 )

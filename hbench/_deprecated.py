@@ -1,4 +1,4 @@
-"""Old module names kept importable after hbench's modules moved into subpackages.
+"""Deprecated top-level module names (``hbench.simulate``, ...) that forward to the packages.
 
 A deprecated name forwards each attribute read from it to the module's new path with a
 :class:`DeprecationWarning` naming that path; nothing is imported and no process-wide state
