@@ -35,10 +35,11 @@ from hbench.tables.published import (
 def alternatives() -> list[Config]:
     """The alternatives ``--investigate`` tests, one change each against the defaults.
 
-    Read from ``hbench/data/paper_alternatives.json``: each entry holds a :class:`Config`'s
-    ``label``, ``group``, ``description`` and the fields it changes; ``overrides`` are dotted
-    scenario keys, ``reference_changes`` keys changed in the paper's reference
-    (:data:`hbench.sim.scenarios.PAPER_SECTION6`), ``reference`` a whole reference of its own.
+    Read from ``hbench/data/paper_alternatives.json``: each entry holds a
+    :class:`hbench.paper.levels.Config`'s ``label``, ``group``, ``description`` and the fields it
+    changes; ``overrides`` are dotted scenario keys, ``reference_changes`` keys changed in the
+    paper's reference (:data:`hbench.sim.scenarios.PAPER_SECTION6`), ``reference`` a whole reference
+    of its own.
 
     Returns
     -------
@@ -226,9 +227,9 @@ def investigate(
 ) -> Any:
     """Re-run under every alternative; write ``investigation.csv`` and ``investigation.md``.
 
-    ``baseline`` holds the defaults' ``comparison``, their rows' :class:`LevelValues`
-    (``values``) and Tables 1-2 (``tables12``), which the alternatives that only re-score the
-    defaults read."""
+    ``baseline`` holds the defaults' ``comparison``, their rows'
+    :class:`hbench.paper.compare.LevelValues` (``values``) and Tables 1-2 (``tables12``), which the
+    alternatives that only re-score the defaults read."""
     import pandas as pd
 
     from hbench.tables.results import to_markdown

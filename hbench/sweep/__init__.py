@@ -7,7 +7,7 @@ deprecated: it warns and comes from there.
 
 import pkgutil
 
-from hbench._deprecated import forward
+from hbench.aliases import forward
 
 __getattr__ = forward(
     __name__, "hbench.sweep.app", submodules=[m.name for m in pkgutil.iter_modules(__path__)]
