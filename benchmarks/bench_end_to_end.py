@@ -41,8 +41,9 @@ import numpy as np
 import pytest
 from pytest_benchmark.fixture import BenchmarkFixture
 
-from hbench import kernels, parallel
+from hbench.bench import kernel_status, parallel
 from hbench.bench.runner import methods_from_names, run_cell
+from hbench.numerics import kernels
 from hbench.sim.simulate import Scenario
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -133,7 +134,7 @@ def test_end_to_end(
             f"{jobs}'s; {faults:.0f} page faults per cell; first cell {walls[0]:.2f} s)"
         )
     benchmark.extra_info.update(
-        runs=runs, methods=METHODS, jobs=jobs, runs_per_second=rate, kernels=kernels.status()
+        runs=runs, methods=METHODS, jobs=jobs, runs_per_second=rate, kernels=kernel_status.status()
     )
 
 
@@ -256,7 +257,7 @@ def _versus_batched(benchmark: BenchmarkFixture, key: str, what: str, rate: floa
     ratio = _rate["batched"] / rate
     benchmark.extra_info[key] = ratio
     print(
-        f"\nend to end, one process: batched ({kernels.status()}) {_rate['batched']:.0f} "
+        f"\nend to end, one process: batched ({kernel_status.status()}) {_rate['batched']:.0f} "
         f"runs/s, {what} {rate:.2f} runs/s -> {ratio:.2f}x"
     )
 

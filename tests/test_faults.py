@@ -33,7 +33,7 @@ from hbench.ident.identifiers import NON_FINITE, Identifier
 from hbench.plugins import registry
 from hbench.sim.scenarios import build
 from hbench.sweep import config
-from hbench.sweep.app import DONE, ROWS
+from hbench.sweep.jobs import DONE, ROWS
 from hbench.system import atomic
 from tests.helpers import paper_spec, registered_methods
 

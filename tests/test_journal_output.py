@@ -16,7 +16,7 @@ import pytest
 from hbench.bench.runner import methods_from_names, run_cell
 from hbench.errors import InputError
 from hbench.report import build as report
-from hbench.report import figures
+from hbench.report import elements, figures
 from hbench.report.style import COLUMN_WIDTH, PAGE_WIDTH, STYLE_FILE, method_style
 from hbench.sim import scenarios
 
@@ -185,7 +185,7 @@ def test_pdf_fonts_are_truetype_and_png_200_dpi(built) -> None:
         types = [ln for ln in listing.splitlines()[2:] if ln.strip()]
         assert types and all("TrueType" in ln for ln in types), listing
     for png in out.glob("*.png"):
-        assert report.png_size(png.read_bytes())[2] >= 199.9, png.name
+        assert elements.png_size(png.read_bytes())[2] >= 199.9, png.name
 
 
 def test_report_opens_with_the_headline_table(built) -> None:

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from hbench.bench import metrics
+from hbench.bench import kernel_status, metrics
 from hbench.bench.runner import methods_from_names, run_cell
 from hbench.errors import InputError
 from hbench.ident import polyphase as pp
@@ -25,7 +25,7 @@ from hbench.ident.identifiers import IdentifyOptions, identify
 from hbench.model import noise
 from hbench.model import nonlinearities as nl
 from hbench.numerics import kernels
-from hbench.sim import scenarios
+from hbench.sim import loop_kernel, scenarios
 from hbench.sim.simulate import simulate
 
 BUILT = kernels.backend() == "c"
@@ -56,10 +56,10 @@ def _scenario(**over: Any):
 def test_ci_has_the_compiled_kernels() -> None:
     if os.environ.get("HBENCH_REQUIRE_KERNELS") != "1":
         pytest.skip("HBENCH_REQUIRE_KERNELS is not set (CI sets it)")
-    assert BUILT, kernels.status()
-    assert kernels.lapack_is_reference(), kernels.status()  # eq. (27) runs compiled in CI
-    assert kernels.lfilter_is_scipys(), kernels.status()  # and lfilter
-    assert kernels.sums_are_numpys(), kernels.status()  # and the fitness
+    assert BUILT, kernel_status.status()
+    assert pp.lapack_is_reference(), kernel_status.status()  # eq. (27) runs compiled in CI
+    assert kernels.lfilter_is_scipys(), kernel_status.status()  # and lfilter
+    assert metrics.sums_are_numpys(), kernel_status.status()  # and the fitness
 
 
 @needs_build
@@ -108,10 +108,10 @@ class _WiderBacklash(nl.Backlash):
 
 def test_unknown_actuators_run_the_numpy_loop() -> None:
     sc = _scenario()
-    assert kernels.supports_loop(sc.controller, nl.Backlash(d=0.1))
-    assert not kernels.supports_loop(sc.controller, _Relay())
+    assert loop_kernel.supports_loop(sc.controller, nl.Backlash(d=0.1))
+    assert not loop_kernel.supports_loop(sc.controller, _Relay())
     # a subclass may change the rules: only the exact built-in types are compiled
-    assert not kernels.supports_loop(sc.controller, _WiderBacklash(d=0.1))
+    assert not loop_kernel.supports_loop(sc.controller, _WiderBacklash(d=0.1))
 
 
 @needs_build
@@ -321,9 +321,7 @@ def test_an_overflowing_run_leaves_its_neighbours_alone() -> None:
     np.testing.assert_array_equal(U, U0)
     np.testing.assert_array_equal(U0[:1], alone)
     assert np.isfinite(U0[0]).all() and not np.isfinite(U0[1]).all()
-    assert (kernels.inner_signal_ls(W, valid, h0, h1) is None) == (
-        not kernels.lapack_is_reference()
-    )
+    assert (kernels.inner_signal_ls(W, valid, h0, h1) is None) == (not kernels.built())
 
 
 def test_a_run_lapack_refuses_leaves_the_others_to_lapack() -> None:
@@ -489,7 +487,7 @@ def test_use_switches_the_backend_of_its_own_thread_only() -> None:
 def test_the_library_checks_do_not_read_the_backend_switch() -> None:
     """Asked first inside ``use("numpy")``, the once-per-process checks still answer for the
     build (a cached "no" would have kept eq. (27) and lfilter off the kernels for good)."""
-    checks = (kernels.lapack_is_reference, kernels.lfilter_is_scipys, kernels.sums_are_numpys)
+    checks = (pp.lapack_is_reference, kernels.lfilter_is_scipys, metrics.sums_are_numpys)
 
     def clear() -> None:
         for check in checks:
@@ -510,15 +508,19 @@ def test_the_library_checks_do_not_read_the_backend_switch() -> None:
 def test_libraries_that_compute_otherwise_keep_their_own_route(monkeypatch) -> None:
     """Where scipy's dptsv or lfilter would not give the kernels' numbers (fused multiply-adds in
     their build), the kernels decline and say so: both backends then take the library's route."""
-    monkeypatch.setattr(kernels, "lapack_is_reference", lambda: False)
+    monkeypatch.setattr(pp, "lapack_is_reference", lambda: False)
     monkeypatch.setattr(kernels, "lfilter_is_scipys", lambda: False)
-    monkeypatch.setattr(kernels, "sums_are_numpys", lambda: False)
+    monkeypatch.setattr(metrics, "sums_are_numpys", lambda: False)
+
+    def declined(*args: Any, **kwargs: Any) -> None:
+        raise AssertionError("a kernel ran where its library computes otherwise")
+
+    monkeypatch.setattr(kernels, "fitness", declined)
+    monkeypatch.setattr(kernels, "inner_signal_ls", declined)
     x = np.ones((2, 10))
-    assert kernels.fitness(x, x, 1.0) is None
+    metrics.fitnesses(x, x, ("gain", "ls"), 1.0)
     assert kernels.lfilter_rows(np.ones((2, 2)), np.array([[1.0, -0.5]] * 2), x) is None
-    assert (
-        kernels.inner_signal_ls(np.ones((2, 3, 2)), np.ones((3, 2), bool), x[:, :2], x[:, :2])
-        is None
-    )
-    assert "eq. (27)" in kernels.status() and "lfilter" in kernels.status()
-    assert "fitness" in kernels.status()
+    W, valid = np.ones((2, 3, 2)), np.ones((3, 2), bool)
+    pp.inner_signal_ls(pp.SimoSystem(W=W, valid=valid, n0=1), x[:, :2], x[:, :2])
+    status = kernel_status.status()
+    assert "eq. (27)" in status and "lfilter" in status and "fitness" in status

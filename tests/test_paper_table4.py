@@ -1,7 +1,7 @@
 """The paper's Section 6 example with its continuous-filter noise: Table 4, LSM and IVM rows.
 
 100 runs per noise level (about 2 s in all). Compared cell by cell with the published mean +- std,
-read from the packaged ``hbench/paper/paper_tables.json`` (b2's sign corrected; rows sigma^2 =
+read from the packaged ``hbench/data/paper_tables.json`` (b2's sign corrected; rows sigma^2 =
 1e-4, 5e-4, 1e-3 as ``shared/paper/NOTES.md`` reads the noise column): |ours - paper| <= 3 SE with
 SE = sqrt(s_ours^2 + s_paper^2) / sqrt(100), both means being averages of 100 runs. Where a
 published mean is itself more than 3 of its own SE from the true value (the paper's IVM b2 at
@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hbench.paper.reproduce import paper_data
+from hbench.tables.published import paper_data
 from tests.helpers import TRUE_STRUCTURE, run_method, sim
 
 PAPER = paper_data()

@@ -13,7 +13,11 @@ import pytest
 
 from hbench import cli
 from hbench.bench.runner import TIDY_COLUMNS
+from hbench.paper import compare as pc
+from hbench.paper import investigate as pi
+from hbench.paper import levels as pl
 from hbench.paper import reproduce as rp
+from hbench.tables import published as pub
 from tests.helpers import BIAS_COLUMNS, FITNESS_COLUMNS, HAS_PDFLATEX, NO_PDFLATEX, compile_tex
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -39,18 +43,18 @@ N_CELLS = {1: 50, 2: 5, 4: 42, 5: 24}
 def test_package_data_is_declared():
     conf = tomllib.loads((ROOT / "pyproject.toml").read_text())
     assert "data/*" in conf["tool"]["setuptools"]["package-data"]["hbench"]
-    assert (ROOT / "hbench" / "paper" / "paper_tables.json").is_file()
+    assert (ROOT / "hbench" / "data" / "paper_tables.json").is_file()
 
 
 def test_paper_cells_typed_with_the_notes_corrections():
-    cells = rp.paper_cells()
+    cells = pub.paper_cells()
     counts = {t: sum(c.table == t for c in cells) for t in N_CELLS}
     assert counts == N_CELLS
     t4 = {(c.row, c.column, c.method): c for c in cells if c.table == 4}
     # b2's sign corrected (printed +0.7244), rows as plain sigma^2 (printed "x 10^-2")
     assert t4[(0.0, "b2", "wang-lsm")].value == -0.7244
     assert t4[(1e-3, "b2", "wang-iv")].value == -0.7171
-    assert {c.row for c in cells if c.table in (4, 5)} == set(rp.LEVELS)
+    assert {c.row for c in cells if c.table in (4, 5)} == set(pl.LEVELS)
     assert t4[(1e-4, "a1", "wang-lsm")].std == 0.0018
     assert t4[(1e-2, "snr", "scenario")].value == 1.8889
     assert math.isinf(t4[(0.0, "snr", "scenario")].value)
@@ -76,7 +80,7 @@ def test_paper_cells_typed_with_the_notes_corrections():
     ],
 )
 def test_parse_printed(text, value, unit):
-    v, u = rp.parse_printed(text)
+    v, u = pub.parse_printed(text)
     assert v == value
     assert u == pytest.approx(unit)
 
@@ -86,22 +90,22 @@ def test_parse_printed(text, value, unit):
 
 def test_z_score_known_values():
     # SE = sqrt(0.2^2/100 + 0.2^2/100) = 0.028284; (1.1 - 1.0) / SE = 3.5355
-    assert rp.z_score(1.1, 0.2, 100, 1.0, 0.2, 100) == pytest.approx(3.5355339, rel=1e-6)
+    assert pub.z_score(1.1, 0.2, 100, 1.0, 0.2, 100) == pytest.approx(3.5355339, rel=1e-6)
     # no published std: the paper's spread is taken to be ours
-    assert rp.z_score(1.1, 0.2, 100, 1.0, math.nan, 100) == pytest.approx(3.5355339, rel=1e-6)
+    assert pub.z_score(1.1, 0.2, 100, 1.0, math.nan, 100) == pytest.approx(3.5355339, rel=1e-6)
     # different spreads and counts: SE = sqrt(0.3^2/25 + 0.1^2/100) = 0.0608276
-    assert rp.z_score(0.9, 0.3, 25, 1.0, 0.1, 100) == pytest.approx(-0.1 / 0.0608276, rel=1e-6)
+    assert pub.z_score(0.9, 0.3, 25, 1.0, 0.1, 100) == pytest.approx(-0.1 / 0.0608276, rel=1e-6)
     # single realisations (Tables 1, 2): SE = sqrt(2) s
-    assert rp.z_score(3.0, 1.0, 1, 1.0, math.nan, 1) == pytest.approx(2 / math.sqrt(2))
+    assert pub.z_score(3.0, 1.0, 1, 1.0, math.nan, 1) == pytest.approx(2 / math.sqrt(2))
     # rounding of the printed number: SE = u / sqrt(12) when nothing else varies
-    assert rp.z_score(1.0001, 0.0, 10, 1.0, 0.0, 1, unit=1e-4) == pytest.approx(
+    assert pub.z_score(1.0001, 0.0, 10, 1.0, 0.0, 1, unit=1e-4) == pytest.approx(
         1e-4 / (1e-4 / math.sqrt(12))
     )
-    assert math.isnan(rp.z_score(math.inf, 0.0, 10, math.inf, 0.0, 1))
-    assert math.isnan(rp.z_score(1.0, 0.0, 10, 1.0, 0.0, 1, unit=0.0))  # SE = 0: undefined
-    assert math.isnan(rp.z_score(1.0, math.nan, 1, 2.0, math.nan, 1, unit=0.0))
+    assert math.isnan(pub.z_score(math.inf, 0.0, 10, math.inf, 0.0, 1))
+    assert math.isnan(pub.z_score(1.0, 0.0, 10, 1.0, 0.0, 1, unit=0.0))  # SE = 0: undefined
+    assert math.isnan(pub.z_score(1.0, math.nan, 1, 2.0, math.nan, 1, unit=0.0))
     # one run of ours (no spread): the published spread stands for both
-    assert rp.z_score(1.1, math.nan, 1, 1.0, 0.1, 100) == pytest.approx(0.1 / math.sqrt(0.0101))
+    assert pub.z_score(1.1, math.nan, 1, 1.0, 0.1, 100) == pytest.approx(0.1 / math.sqrt(0.0101))
 
 
 def _frame(zs):
@@ -125,7 +129,7 @@ def _frame(zs):
 
 
 def test_summary_share_and_beyond_cells():
-    s = rp.summarise(_frame([0.5, -1.9, 2.0, 2.1, -3.0, math.nan]))
+    s = pub.summarise(_frame([0.5, -1.9, 2.0, 2.1, -3.0, math.nan]))
     assert (s.scored, s.within, s.unscored) == (5, 3, 1)
     assert s.share == pytest.approx(0.6)
     assert [c["z"] for c in s.beyond] == [-3.0, 2.1]  # largest |z| first, exactly the cells
@@ -136,7 +140,7 @@ def test_summary_share_and_beyond_cells():
 
 
 def test_summary_with_nothing_beyond():
-    s = rp.summarise(_frame([0.1, -0.2]))
+    s = pub.summarise(_frame([0.1, -0.2]))
     assert s.beyond == [] and s.within == 2
     assert "beyond |z|" not in s.text()
 
@@ -169,7 +173,7 @@ def test_compare_tables45_on_hand_made_rows():
         ],
         ignore_index=True,
     )
-    out = rp.compare_tables45(rows).set_index(["table", "row", "column", "method"])
+    out = pc.compare_tables45(rows).set_index(["table", "row", "column", "method"])
     cell = out.loc[(4, 1e-3, "a1", "wang-lsm")]
     assert cell["ours"] == pytest.approx(a1.mean())
     assert cell["ours_std"] == pytest.approx(a1.std(ddof=1))
@@ -181,7 +185,7 @@ def test_compare_tables45_on_hand_made_rows():
     # cells without rows are empty, not invented
     assert math.isnan(out.loc[(4, 1e-4, "a1", "wang-lsm"), "ours"])
     # F_INV mapped to bai-fu and the power SNR by configuration
-    alt = rp.compare_tables45(rows, rp.Config(f_inv="bai-fu", snr="power"))
+    alt = pc.compare_tables45(rows, pl.Config(f_inv="bai-fu", snr="power"))
     alt = alt.set_index(["table", "row", "column", "method"])
     assert alt.loc[(5, 1e-3, "F", "bai-fu"), "ours"] == pytest.approx(65.0)
     assert alt.loc[(4, 1e-3, "snr", "scenario"), "ours"] == pytest.approx(np.mean(snr**2))
@@ -202,16 +206,16 @@ def test_lsm_rows_from_the_paper_steps():
         ],
         ignore_index=True,
     )
-    before = rp.compare_tables45(rows)
-    after = rp.compare_tables45(rows, rp.Config(lsm="wang"))
+    before = pc.compare_tables45(rows)
+    after = pc.compare_tables45(rows, pl.Config(lsm="wang"))
     cells = after.set_index(["table", "row", "column", "method"])
     assert cells.loc[(4, 5e-3, "a1", "wang"), "ours"] == pytest.approx(a1.mean() - 0.01)
     assert cells.loc[(5, 5e-3, "F", "wang"), "ours"] == pytest.approx(60.0)
     assert cells.loc[(5, 5e-3, "F", "wang-lsm-inv"), "ours"] == pytest.approx(40.0)
     assert not (after["method"] == "wang-lsm").any()
-    row = rp.investigation_row(rp.Config(label="steps", lsm="wang"), before, after)
+    row = pi.investigation_row(pl.Config(label="steps", lsm="wang"), before, after)
     assert row["cells"] == int(np.isfinite(before["z"]).sum())  # every cell matched
-    steps, text = rp.steps_comparison(rows, before)
+    steps, text = pc.steps_comparison(rows, before)
     assert set(steps["method"]) == {"wang"} and len(steps) == len(
         before[before["method"] == "wang-lsm"]
     )
@@ -229,10 +233,10 @@ def test_table2_read_swapped():
     }
 
     def t2(config):
-        f = rp.compare_tables12(tab, config)
+        f = pc.compare_tables12(tab, config)
         return f[f["table"] == 2].set_index("row")["ours"]
 
-    printed, swapped = t2(rp.Config()), t2(rp.Config(table2="swapped"))
+    printed, swapped = t2(pl.Config()), t2(pl.Config(table2="swapped"))
     assert printed[1] == var[0, 0] and printed[2] == var[0, 1]
     assert swapped[1] == var[0, 1] and swapped[2] == var[0, 0]
     assert (swapped[[3, 4, 5]] == printed[[3, 4, 5]]).all()
@@ -263,7 +267,7 @@ def test_display_table_headers_agree_with_their_cells(tmp_path):
         ],
         columns=CONTRACT_COLUMNS,
     )
-    rp.write_display_tables(frame, tmp_path, realisations=20)
+    pub.write_display_tables(frame, tmp_path, realisations=20)
     for name in ("table1", "table2", "table4"):
         header, body = _header_and_body((tmp_path / f"{name}.md").read_text())
         assert ("mean ± std" in header) == ("±" in body), (name, header)
@@ -279,7 +283,7 @@ def test_display_table_headers_agree_with_their_cells(tmp_path):
 def test_investigation_row_counts_moved_cells():
     before = _frame([10.0, 0.5, -4.0, math.nan])
     after = _frame([1.0, 0.5, -6.0, math.nan])
-    row = rp.investigation_row(rp.Config(label="alt"), before, after)
+    row = pi.investigation_row(pl.Config(label="alt"), before, after)
     assert row["alternative"] == "alt"
     assert (row["cells"], row["cells_closer"], row["cells_further"]) == (3, 1, 1)
     assert row["mean_abs_z_before"] == pytest.approx((10 + 0.5 + 4) / 3)
@@ -299,8 +303,8 @@ def test_investigation_row_matches_cells_by_slot():
         ]
         return pd.DataFrame(recs).assign(paper=1.0, paper_std=0.1, ours=1.0, ours_std=0.1)
 
-    row = rp.investigation_row(
-        rp.Config(label="f"), frame(-8.0, "wang-lsm-inv", -3.0), frame(-8.0, "bai-fu", -9.0)
+    row = pi.investigation_row(
+        pl.Config(label="f"), frame(-8.0, "wang-lsm-inv", -3.0), frame(-8.0, "bai-fu", -9.0)
     )
     assert (row["cells"], row["cells_closer"], row["cells_further"]) == (4, 0, 1)
     assert row["moved_most"] == "T5 bai-fu F@0.001: -3.0->-9.0"
@@ -311,18 +315,18 @@ def test_investigation_row_matches_cells_by_slot():
 def test_explained_cells_name_the_alternatives_within():
     before = _frame([10.0, 0.5, -4.0, math.nan])
     comps = {"a": _frame([1.0, 0.5, -6.0, math.nan]), "b": _frame([-1.5, 3.0, 1.9, 0.0])}
-    out = rp.explained_cells(before, comps)
+    out = pi.explained_cells(before, comps)
     assert list(out["z"]) == [10.0, -4.0]
     assert list(out["within_by"]) == ["a (+1.0); b (-1.5)", "b (+1.9)"]
-    assert rp.explained_cells(before, {"c": before})["within_by"].tolist() == ["", ""]
+    assert pi.explained_cells(before, {"c": before})["within_by"].tolist() == ["", ""]
 
 
 def test_spread_ratio_is_a_geometric_mean():
     f = pd.DataFrame({"ours_std": [2.0, 0.5, math.nan, 3.0], "paper_std": [1.0, 1.0, 1.0, 0.0]})
-    assert rp.spread_ratio(f) == pytest.approx(1.0)
+    assert pi.spread_ratio(f) == pytest.approx(1.0)
     f = pd.DataFrame({"ours_std": [2.0, 8.0], "paper_std": [1.0, 1.0]})
-    assert rp.spread_ratio(f) == pytest.approx(4.0)
-    assert math.isnan(rp.spread_ratio(f.iloc[:0]))
+    assert pi.spread_ratio(f) == pytest.approx(4.0)
+    assert math.isnan(pi.spread_ratio(f.iloc[:0]))
 
 
 def test_best_alternative_per_group():
@@ -340,7 +344,7 @@ def test_best_alternative_per_group():
             "std_ratio_T5_after": [1.0, 1.2, 3.0, 1.0],
         }
     )
-    lines = rp._best_per_group(t)
+    lines = pi._best_per_group(t)
     assert lines[0] == (
         "- g: b 5.00 -> 2.00 (closer; T1 1.00 -> 3.00, T2 2.00 -> 2.00; spreads 1.10, 1.20)"
     )
@@ -349,12 +353,12 @@ def test_best_alternative_per_group():
 
 
 def test_alternatives_are_distinct_single_changes():
-    alts = rp.alternatives()
+    alts = pi.alternatives()
     labels = [a.label for a in alts]
     assert len(labels) == len(set(labels))
-    assert rp.POST_PROCESSED <= set(labels)
+    assert pi.POST_PROCESSED <= set(labels)
     for a in alts:  # each builds a valid scenario
-        rp.scenario_spec(a, 1e-3)
+        pl.scenario_spec(a, 1e-3)
 
 
 # --------------------------------------------------------------------------- end to end
@@ -389,7 +393,7 @@ def test_reproduce_csv_is_the_contract(reproduced):
     counts = frame["table"].value_counts().to_dict()
     assert counts == N_CELLS
     t45 = frame[frame["table"].isin([4, 5])]
-    assert set(t45["row"].astype(float)) == set(rp.LEVELS)
+    assert set(t45["row"].astype(float)) == set(pl.LEVELS)
     assert set(frame.loc[frame["table"] == 4, "column"]) == {"a1", "a2", "b2", "snr"}
     assert set(frame.loc[frame["table"] == 5, "column"]) == {"F", "F0"}
     assert set(frame.loc[frame["table"] == 1, "column"].astype(str)) == {"0", "1", "2", "3", "4"}
@@ -414,7 +418,7 @@ def test_reproduce_csv_is_the_contract(reproduced):
 def test_summary_line_printed_and_saved(reproduced):
     d = reproduced[1][0]
     frame = pd.read_csv(d / "reproduce.csv")
-    s = rp.summarise(frame)
+    s = pub.summarise(frame)
     saved = (d / "summary.txt").read_text()
     assert saved.splitlines()[0] == s.line()
     assert s.line() in reproduced[2]
@@ -448,8 +452,8 @@ def test_tables_figures_and_provenance(reproduced):
         assert pdf[:5] == b"%PDF-" and len(pdf) > 2000
     rows = pd.read_parquet(d / "rows.parquet")
     assert list(rows.columns) == list(TIDY_COLUMNS)
-    assert set(rows["method"]) == set(rp.ALL_METHODS)
-    assert set(rows["sigma2"]) == set(rp.LEVELS)
+    assert set(rows["method"]) == set(pl.ALL_METHODS)
+    assert set(rows["sigma2"]) == set(pl.LEVELS)
     assert list(pd.read_csv(d / "fitness.csv").columns) == FITNESS_COLUMNS
     assert list(pd.read_csv(d / "bias.csv").columns) == BIAS_COLUMNS
     for name in ("fitness", "bias"):
@@ -458,7 +462,7 @@ def test_tables_figures_and_provenance(reproduced):
     prov = json.loads((d / "provenance.json").read_text())
     assert prov["config"]["runs"] == 5
     assert prov["config"]["table5_columns"]["F_INV"] == "wang-lsm-inv"
-    assert prov["seeds"]["base"] == rp.DEFAULT_SEED
+    assert prov["seeds"]["base"] == pl.DEFAULT_SEED
     assert {"git_revision", "versions", "created"} <= set(prov)
     with np.load(d / "examples.npz") as ex:
         assert ex["c0__x"].shape == ex["c0__U"].shape == ex["c0__est__wang-lsm"].shape
@@ -505,7 +509,7 @@ def test_reproduce_defaults_match_most_published_cells(tmp_path):
 def test_investigate_writes_one_row_per_alternative(tmp_path):
     d = rp.reproduce(runs=3, out=tmp_path, investigate_=True, report=False)
     inv = pd.read_csv(d / "investigation.csv")
-    assert list(inv["alternative"]) == [a.label for a in rp.alternatives()]
+    assert list(inv["alternative"]) == [a.label for a in pi.alternatives()]
     assert {"mean_abs_z_before", "mean_abs_z_after", "T5_after", "cells_closer"} <= set(inv)
     assert (d / "investigation.md").read_text().startswith("# Investigation")
 
@@ -518,3 +522,18 @@ def test_every_latex_table_of_the_reproduction_compiles(reproduced):
     assert {"table5.tex", "summary.tex", "summary_bias.tex"} <= {f.name for f in files}
     done = compile_tex(folders[0], files)
     assert done.returncode == 0, done.stdout[-3000:]
+
+
+def test_the_alternatives_are_data_each_one_change_from_the_defaults():
+    """``hbench/data/paper_alternatives.json``: unique labels, every alternative differs from the
+    defaults, and each builds a scenario (its keys are the scenario's)."""
+    from hbench.sim import scenarios
+
+    data = json.loads((ROOT / "hbench" / "data" / "paper_alternatives.json").read_text())
+    entries = data["alternatives"]
+    alternatives = pi.alternatives()
+    assert [a.label for a in alternatives] == [e["label"] for e in entries]
+    assert len({a.label for a in alternatives}) == len(alternatives)
+    assert all(a.describe() != pl.Config().describe() | {"label": a.label} for a in alternatives)
+    for a in alternatives:
+        scenarios.build(pl.scenario_spec(a, pl.TYPICAL_LEVEL))

@@ -25,8 +25,9 @@ from hbench.errors import InputError
 from hbench.ident.identifiers import Identifier
 from hbench.plugins import registry
 from hbench.sweep import config
-from hbench.sweep.app import DONE, EXAMPLE, ROW_COLUMNS, ROWS, validate
+from hbench.sweep.app import EXAMPLE, validate
 from hbench.sweep.callbacks import aggregate_dir
+from hbench.sweep.jobs import DONE, ROW_COLUMNS, ROWS
 from hbench.tables import results
 from tests.helpers import BIAS_COLUMNS, FITNESS_COLUMNS, registered_methods
 

@@ -65,10 +65,10 @@ def run(args: argparse.Namespace) -> int:
     InputError
         A bad record, option or output path.
     """
-    from hbench.cli import check_output
     from hbench.diagnose.validate import diagnose, parse_criterion
     from hbench.io.readers import read_record
     from hbench.plugins import registry
+    from hbench.system.writable import check_output
 
     to_stdout = args.json == "-"
     info = sys.stderr if to_stdout else sys.stdout  # the human text: never mixed into the JSON

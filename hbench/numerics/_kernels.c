@@ -25,7 +25,7 @@
 #define HB_LANES 4
 HB_EXPORT const char *hb_source_sha256(void) { return HB_SOURCE_SHA256; }
 
-/* actuator codes (hbench.numerics.kernels.NONLINEARITY_CODES) */
+/* actuator codes (hbench.sim.loop_kernel.NONLINEARITY_CODES) */
 enum { NL_LINEAR = 0, NL_DEADBAND = 1, NL_SATURATION = 2, NL_BACKLASH = 3, NL_STICTION = 4,
        NL_STICTION_HE = 5 };
 

@@ -19,9 +19,10 @@ batched with it.
 
 Kernels:
 
-* :func:`closed_loop`: :func:`hbench.sim.simulate._run_loop` for the built-in actuators
-  (:data:`NONLINEARITY_CODES`) and the state-space controllers of :mod:`hbench.model.controllers`;
-  other actuators (plugins) run the numpy loop.
+* :func:`hbench.sim.loop_kernel.closed_loop` (the call is there):
+  :func:`hbench.sim.simulate._run_loop` for the built-in actuators
+  (:data:`hbench.sim.loop_kernel.NONLINEARITY_CODES`) and the state-space controllers of
+  :mod:`hbench.model.controllers`; other actuators (plugins) run the numpy loop.
 * :func:`filtered_output`: ``w = A(q) y`` of :func:`hbench.ident.polyphase.filtered_output`.
 * :func:`period_mean_squares`: ``Var{Delta w^(l)}`` of
   :func:`hbench.ident.polyphase.phase_variances`.
@@ -41,29 +42,16 @@ import functools
 import hashlib
 import importlib.util
 import os
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from hbench.errors import InputError
-from hbench.model import nonlinearities as nl
-from hbench.model.controllers import Controller
 
 BACKENDS = ("auto", "numpy")
 
-#: Built-in actuators the closed-loop kernel knows: ``type -> (code, parameter names)``.
-NONLINEARITY_CODES: dict[type[nl.Nonlinearity], tuple[int, tuple[str, ...]]] = {
-    nl.Linear: (0, ("gain",)),
-    nl.Deadband: (1, ("d1", "d2", "slope")),
-    nl.Saturation: (2, ("u_min", "u_max")),
-    nl.Backlash: (3, ("d",)),
-    nl.Stiction: (4, ("S", "J")),
-    nl.StictionHe: (5, ("f_s", "f_d")),
-}
-#: The actuator state's fields, in the columns the kernel reads and updates.
-_STATE = ("x_prev", "u_prev", "x_ss", "direction", "stuck")
 
 _F64 = np.ctypeslib.ndpointer(dtype=np.float64, flags="C_CONTIGUOUS,ALIGNED")
 _U8 = np.ctypeslib.ndpointer(dtype=np.uint8, flags="C_CONTIGUOUS,ALIGNED")
@@ -135,19 +123,17 @@ def backend() -> str:
     return "c" if _library()[0] is not None else "numpy"
 
 
-def status() -> str:
-    """One line for people: which path runs and why."""
+def built() -> bool:
+    """Whether the compiled library is built and loads (whatever the backend switch)."""
+    return _library()[0] is not None
+
+
+def status(own_route: Sequence[str] = ()) -> str:
+    """One line for people: which path runs and why; ``own_route``: the computations numpy or
+    scipy run although the kernels do, because this machine's libraries compute otherwise
+    (:func:`hbench.bench.kernel_status.status` finds them)."""
     b = backend()
     if b == "c":
-        own_route = [
-            what
-            for what, same in (
-                ("eq. (27) (this LAPACK's dptsv)", lapack_is_reference()),
-                ("lfilter (this scipy's)", lfilter_is_scipys()),
-                ("the fitness (this numpy's sums)", sums_are_numpys()),
-            )
-            if not same
-        ]
         if own_route:  # fused multiply-adds in the libraries: their own routes keep both equal
             return (
                 "compiled kernels (hbench.numerics._kernels); numpy/scipy for "
@@ -172,83 +158,14 @@ def use(name: str) -> Iterator[None]:
         _override.reset(token)
 
 
-def _compiled() -> ctypes.CDLL | None:
+def active_library() -> ctypes.CDLL | None:
     """The library when the compiled kernels run (:func:`backend` is ``"c"``), else None."""
     return _library()[0] if backend() == "c" else None
 
 
-def _f64(a: Any) -> np.ndarray:
+def as_f64(a: Any) -> np.ndarray:
     """``a`` as C-ordered, aligned float64 (a copy only where it is not already)."""
     return np.require(a, np.float64, ("C", "A"))
-
-
-def supports_loop(controller: Controller, nonlinearity: nl.Nonlinearity) -> bool:
-    """True when :func:`closed_loop` can run this controller and actuator compiled."""
-    ctl = type(controller)
-    return (
-        type(nonlinearity) in NONLINEARITY_CODES
-        and ctl.step is Controller.step
-        and ctl.initial_state is Controller.initial_state
-        and controller.A.shape[0] <= 64
-    )
-
-
-def closed_loop(
-    lp: Any,
-    controller: Controller,
-    nonlinearity: nl.Nonlinearity,
-    r: np.ndarray,
-    v_slow: np.ndarray,
-    p: int,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """``(y0, x, U)`` of the closed loop, compiled; ``None`` when the numpy loop must run.
-
-    The arguments are those of :func:`hbench.sim.simulate._run_loop` but for ``v_slow``, the noise
-    at the controller's samples (``v[:, ::p]``).
-    """
-    lib = _compiled()
-    L = lp.Fp.shape[0]
-    if lib is None or not supports_loop(controller, nonlinearity) or L > 64:
-        return None
-    R, K = r.shape
-    code, names = NONLINEARITY_CODES[type(nonlinearity)]
-    prm = _f64([getattr(nonlinearity, n) for n in names])
-    init = nonlinearity.initial_state(R)
-    state = np.zeros((R, len(_STATE)))
-    for j, key in enumerate(_STATE):
-        if key in init:
-            state[:, j] = init[key]
-    y0 = np.empty((R, K * p))
-    X = np.empty((R, K))
-    U = np.empty((R, K))
-    c = controller
-    rc = lib.hb_closed_loop(
-        R,
-        K,
-        L,
-        p,
-        _f64(lp.Fp),
-        _f64(lp.Gp),
-        _f64(lp.Ob),
-        _f64(lp.Db),
-        c.A.shape[0],
-        _f64(c.A),
-        _f64(c.B),
-        _f64(c.C),
-        float(c.D),
-        int(c.delay),
-        code,
-        prm,
-        state,
-        _f64(r),
-        _f64(v_slow),
-        y0,
-        X,
-        U,
-    )
-    if rc != 0:
-        raise RuntimeError(f"hb_closed_loop failed with code {rc}")
-    return y0, X, U
 
 
 def filtered_output(y: np.ndarray, a: np.ndarray) -> np.ndarray | None:
@@ -268,10 +185,10 @@ def filtered_output_and_delta(y: np.ndarray, a: np.ndarray) -> tuple[np.ndarray,
 def _filtered_output(
     y: np.ndarray, a: np.ndarray, with_delta: bool
 ) -> tuple[np.ndarray, np.ndarray | None] | None:
-    lib = _compiled()
+    lib = active_library()
     if lib is None or y.ndim != 2 or a.ndim != 2 or a.shape[0] != y.shape[0] or a.shape[1] < 1:
         return None
-    y, a = _f64(y), _f64(a)
+    y, a = as_f64(y), as_f64(a)
     R, N = y.shape
     w = np.empty((R, N))
     dw = np.empty((R, N)) if with_delta else None
@@ -283,7 +200,7 @@ def period_mean_squares(block: np.ndarray) -> np.ndarray | None:
     """``np.mean(np.square(block), axis=1)`` for ``block`` of shape ``(runs, n, width)``, a
     strided view with unit element stride (:func:`hbench.ident.polyphase.period_block`), compiled;
     ``None`` when numpy must run (numpy path, ``width < 2``, no periods, another layout)."""
-    lib = _compiled()
+    lib = active_library()
     if lib is None or block.ndim != 3 or block.dtype != np.float64:
         return None
     R, n, width = block.shape
@@ -303,14 +220,14 @@ def filtered_phase_variances(
     ``w``), compiled without forming ``w`` or ``dw``: the same operations in the same order.
     ``None`` when numpy must run (numpy path, ``p < 2`` where numpy sums pairwise, ``p > 64``,
     no period, or a window that reaches an undefined ``w``)."""
-    lib = _compiled()
+    lib = active_library()
     if lib is None or y.ndim != 2 or a.ndim != 2 or a.shape[0] != y.shape[0] or a.shape[1] < 1:
         return None
     R, N = y.shape
     na = a.shape[1] - 1
     if not 2 <= p <= 64 or n < 1 or t0 - 1 < na or t0 + n * p > N:
         return None
-    y, a = _f64(y), _f64(a)
+    y, a = as_f64(y), as_f64(a)
     out = np.empty((R, p))
     lib.hb_filtered_phase_variances(R, N, na, a, y, p, t0, n, out)
     return out
@@ -321,16 +238,18 @@ def fitness(
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """:func:`hbench.bench.metrics.fitnesses` under the scalings ``"gain"`` and ``"ls"``, compiled:
     ``(F_gain, F_ls)`` per run. ``None`` when numpy must run: numpy path, inputs that are not
-    C-ordered float64 rows of one shape (numpy would sum them in another order), or a numpy
-    whose row sums are not the kernel's (:func:`sums_are_numpys`)."""
-    if _compiled() is None or not sums_are_numpys():
+    C-ordered float64 rows of one shape (numpy would sum them in another order). Where numpy's row
+    sums are not the kernel's, the caller keeps to numpy
+    (:func:`hbench.bench.metrics.sums_are_numpys`)."""
+    if active_library() is None:
         return None
-    return _fitness(U_est, U, gain)
+    return fitness_built(U_est, U, gain)
 
 
-def _fitness(
+def fitness_built(
     U_est: np.ndarray, U: np.ndarray, gain: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray] | None:
+    """:func:`fitness` with the built library whatever the backend switch (its self-check's)."""
     lib = _library()[0]
     if lib is None or U_est.ndim != 2 or U.shape != U_est.shape or U.shape[1] < 1:
         return None
@@ -346,38 +265,12 @@ def _fitness(
     return out_gain, out_ls
 
 
-@functools.cache
-def sums_are_numpys() -> bool:
-    """Whether the kernel of :func:`fitness` gives numpy's numbers here: its row sums follow
-    numpy's pairwise summation, which a numpy release may change. Checked once per process on
-    rows of many lengths and magnitudes with undefined samples; where it fails, the fitness is
-    computed by numpy on both backends. Independent of the backend switch."""
-    from hbench.bench import metrics
-
-    rng = np.random.default_rng(12)
-    for K in (1, 2, 7, 8, 9, 15, 16, 17, 127, 128, 129, 130, 255, 256, 257, 500, 1001, 4099):
-        U = rng.standard_normal((4, K)) * np.exp(rng.uniform(-30, 30, (4, K)))
-        U_est = 1.7 * U + rng.standard_normal((4, K)) * np.exp(rng.uniform(-30, 30, (4, K)))
-        U_est[1, : min(K, 3)] = np.nan
-        U_est[2] = np.nan
-        U[3, K // 2] = np.inf
-        gain = rng.uniform(0.5, 2.0, 4)
-        got = _fitness(U_est, U, gain)
-        want = metrics.fitnesses(U_est, U, ("gain", "ls"), gain, compiled=False)
-        if got is None:
-            return False
-        pairs = zip(got, want.values(), strict=True)
-        if not all(np.array_equal(g, w, equal_nan=True) for g, w in pairs):
-            return False
-    return True
-
-
 def lfilter_rows(num: np.ndarray, den: np.ndarray, x: np.ndarray) -> np.ndarray | None:
     """``scipy.signal.lfilter(num[r], den[r], x[r])`` for every run, from rest, compiled;
     ``None`` when scipy must run (numpy path, a denominator of length 1, more than 64
     coefficients, or a scipy whose ``lfilter`` does not compute as the kernel does: see
     :func:`lfilter_is_scipys`)."""
-    if _compiled() is None or not lfilter_is_scipys():
+    if active_library() is None or not lfilter_is_scipys():
         return None
     return _lfilter_rows(num, den, x)
 
@@ -437,20 +330,22 @@ def inner_signal_ls(
     ``W[:, k, i] = w[:, start + k p + i]``), their validity ``(M, p)`` and the channel
     coefficients ``(runs, p)``, compiled; ``None`` when the numpy path must run (also where
     this machine's LAPACK ``dptsv`` does not compute as the reference ``dpttrf``/``dpttrs`` the
-    kernel mirrors: see :func:`lapack_is_reference`). Entries that are not ``valid`` are taken
+    kernel mirrors, the caller keeps to numpy: see
+    :func:`hbench.ident.polyphase.lapack_is_reference`). Entries that are not ``valid`` are taken
     as 0, never read."""
-    if _compiled() is None or not lapack_is_reference():
+    if active_library() is None:
         return None
-    return _inner_signal_ls(W, valid, h0, h1, start)
+    return inner_signal_ls_built(W, valid, h0, h1, start)
 
 
-def _inner_signal_ls(
+def inner_signal_ls_built(
     W: np.ndarray,
     valid: np.ndarray,
     h0: np.ndarray,
     h1: np.ndarray,
     start: int | None = None,
 ) -> np.ndarray | None:
+    """:func:`inner_signal_ls` with the built library whatever the backend switch."""
     lib = _library()[0]  # the build, whatever the switch (the public wrapper reads that)
     if lib is None or valid.ndim != 2 or h0.ndim != 2 or h1.ndim != 2:
         return None
@@ -474,39 +369,14 @@ def _inner_signal_ls(
         R,
         M,
         p,
-        _f64(W),
+        as_f64(W),
         row_stride,
         int(start),
         np.ascontiguousarray(valid, dtype=np.uint8),
-        _f64(h0),
-        _f64(h1),
+        as_f64(h0),
+        as_f64(h1),
         U,
     )
     if rc != 0:
         raise RuntimeError(f"hb_inner_signal_ls failed with code {rc}")
     return U
-
-
-@functools.cache
-def lapack_is_reference() -> bool:
-    """Whether scipy's LAPACK ``dptsv`` gives the reference ``dpttrf``/``dptts2`` arithmetic that
-    :func:`inner_signal_ls`'s kernel performs (no fused multiply-adds), checked once per process
-    on a fixed eq.-(27) system; where it does not (an FMA build of LAPACK), eq. (27) runs the
-    numpy path on both backends, so they still agree. A property of the build and the libraries,
-    not of the backend switch (:func:`use`), which it neither reads nor depends on."""
-    if _library()[0] is None:
-        return False
-    from hbench.ident import polyphase as pp  # polyphase imports this module
-
-    rng = np.random.default_rng(27)
-    valid = np.ones((60, 5), bool)
-    valid[-1, 2:] = False
-    W = np.where(
-        valid, rng.standard_normal((4, 60, 5)) * np.exp(rng.uniform(-5, 5, (4, 1, 1))), 0.0
-    )
-    b = np.concatenate([np.ones((4, 1)), rng.standard_normal((4, 2))], axis=1)
-    h0, h1 = pp.simo_channels(b, 5)
-    got = _inner_signal_ls(W, valid, h0, h1)
-    with use("numpy"):
-        want = pp.inner_signal_ls(pp.SimoSystem(W=W, valid=valid, n0=1), h0, h1)
-    return got is not None and bool(np.array_equal(got, want))

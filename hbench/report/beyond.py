@@ -251,7 +251,7 @@ class BeyondSection:
 
     def html(self, pngs: Sequence[bytes]) -> str:
         """The section's HTML with ``pngs`` (one per entry of ``figures``) embedded."""
-        from hbench.report.build import html_figure
+        from hbench.report.elements import html_figure
 
         out = []
         for b in self.blocks:
@@ -277,7 +277,8 @@ def _missing_note(part: str, need: list[str]) -> str:
 def _delay_blocks(
     section: BeyondSection, structure: pd.DataFrame, out: Path, series_label: Label
 ) -> None:
-    from hbench.report.build import html_table, method_info
+    from hbench.report.elements import html_table
+    from hbench.report.style import method_info
 
     pooled = delay_hit_rates(structure, lambda m: method_info(m)["oracle"])
     grid = delay_grid(structure, pooled)
@@ -328,7 +329,7 @@ def _delay_blocks(
 
 
 def _coloured_blocks(section: BeyondSection, fitness: pd.DataFrame, bias: pd.DataFrame) -> None:
-    from hbench.report.build import html_table
+    from hbench.report.elements import html_table
 
     t = coloured_table(fitness, bias)
     section.blocks.append(
@@ -357,7 +358,7 @@ def _coloured_blocks(section: BeyondSection, fitness: pd.DataFrame, bias: pd.Dat
 
 
 def _joint_blocks(section: BeyondSection, fitness: pd.DataFrame) -> None:
-    from hbench.report.build import html_table
+    from hbench.report.elements import html_table
 
     t = joint_table(fitness)
     section.blocks.append(

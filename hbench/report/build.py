@@ -31,8 +31,6 @@ a section "Beyond the paper" follows the tables (:mod:`hbench.report.beyond`; it
 from __future__ import annotations
 
 import argparse
-import base64
-import html
 import json
 import math
 import os
@@ -42,6 +40,8 @@ from pathlib import Path
 from typing import Any
 
 from hbench.errors import InputError
+from hbench.report.elements import escape as _esc
+from hbench.report.elements import html_figure, html_table
 from hbench.report.style import method_info
 from hbench.system import atomic
 
@@ -495,85 +495,9 @@ table.headline tr.bound th,table.headline tr.bound td{color:#777}
 """
 
 
-def _esc(x: Any) -> str:
-    return html.escape(str(x), quote=True)
-
-
-def _empty_columns(table: Any) -> list[str]:
-    """Columns whose every cell is empty (nan, None or blank text)."""
-    out = []
-    for c in table.columns:
-        col = table[c]
-        if len(col) and all(
-            v is None
-            or (isinstance(v, str) and not v.strip())
-            or (isinstance(v, float) and math.isnan(v))
-            for v in col
-        ):
-            out.append(c)
-    return out
-
-
-def html_table(table: Any, floatfmt: str = ".4g", table_id: str | None = None) -> str:
-    """``table`` as HTML in a horizontally scrolling box; columns with no value are left out
-    (said under the table)."""
-    from hbench.tables.results import format_number
-
-    hidden = _empty_columns(table)
-    cols = [c for c in table.columns if c not in hidden]
-
-    def fmt(v: Any) -> str:
-        number = format_number(v, floatfmt)
-        return str(v) if number is None else number
-
-    ident = f' id="{_esc(table_id)}"' if table_id else ""
-    head = "".join(f"<th>{_esc(c)}</th>" for c in cols)
-    body = "".join(
-        "<tr>" + "".join(f"<td>{_esc(fmt(row[c]))}</td>" for c in cols) + "</tr>"
-        for _, row in table.iterrows()
-    )
-    note = (
-        f'<p class="hidden-cols">Empty columns not shown: {_esc(", ".join(map(str, hidden)))}.</p>'
-        if hidden
-        else ""
-    )
-    return (
-        f'<div class="scroll"><table{ident}><thead><tr>{head}</tr></thead>'
-        f"<tbody>{body}</tbody></table></div>{note}"
-    )
-
-
 def _fold(summary: str, inner: str, open_: bool = False) -> str:
     """``inner`` folded in a ``<details>`` element titled ``summary``."""
     return f"<details{' open' if open_ else ''}><summary>{_esc(summary)}</summary>{inner}</details>"
-
-
-#: Screen pixels per inch of a figure on the page (its text at 8 pt shows as ~14 px).
-SCREEN_PPI = 130
-
-
-def png_size(png: bytes) -> tuple[int, int, float]:
-    """``(width, height, dots per inch)`` from a PNG's IHDR and pHYs chunks (dpi 0 if unset)."""
-    import struct
-
-    width, height = struct.unpack(">II", png[16:24])
-    at = png.find(b"pHYs")
-    dpi = 0.0
-    if at > 0:
-        ppx, _, unit = struct.unpack(">IIB", png[at + 4 : at + 13])
-        dpi = ppx * 0.0254 if unit == 1 else 0.0
-    return width, height, dpi
-
-
-def html_figure(fig_id: str, png: bytes, caption: str) -> str:
-    """A figure with its PNG embedded, shown at :data:`SCREEN_PPI` of its print size."""
-    data = base64.b64encode(png).decode("ascii")
-    width, _, dpi = png_size(png)
-    shown = f' width="{round(width * SCREEN_PPI / dpi)}"' if dpi else ""
-    return (
-        f'<figure id="{_esc(fig_id)}"><img src="data:image/png;base64,{data}"{shown} '
-        f'alt="{_esc(caption)}"><figcaption>{_esc(caption)}</figcaption></figure>'
-    )
 
 
 # --------------------------------------------------------------------------- the report
@@ -668,13 +592,13 @@ def _reproduction_html(run_dir: Path, out: Path) -> str:
     """The paper comparison when ``reproduce.csv`` is present."""
     import pandas as pd
 
-    from hbench.paper import reproduce as rp
+    from hbench.tables import published as pub
 
     csv = run_dir / "reproduce.csv"
     if not csv.is_file():
         return ""
     frame = pd.read_csv(csv)
-    summary = rp.summarise(frame)
+    summary = pub.summarise(frame)
     parts = [
         '<section id="reproduction"><h2>Reproduction of the paper (Section 6)</h2>',
         f"<p><b>{_esc(summary.line())}</b></p>",
@@ -696,7 +620,7 @@ def _reproduction_html(run_dir: Path, out: Path) -> str:
         "table1": "Table 1: V(na, τ) ×1e-7 (one realisation, σ² = 1e-3)",
         "table2": "Table 2: Var Δw(l) ×1e-7 (same realisation)",
     }
-    shown = rp.display_tables(frame)
+    shown = pub.display_tables(frame)
     for name in ("table4", "snr", "table5", "table1", "table2"):
         if name in shown:
             parts.append(f"<h3>{_esc(titles[name])}</h3>" + html_table(shown[name], table_id=name))
@@ -713,7 +637,7 @@ def _reproduction_html(run_dir: Path, out: Path) -> str:
     if inv.is_file():
         t = pd.read_csv(inv)
         # the reproduction summary's columns; the report has always left out within2_after
-        cols = [c for c in rp.INVESTIGATION_COLUMNS if c in t.columns and c != "within2_after"]
+        cols = [c for c in pub.INVESTIGATION_COLUMNS if c in t.columns and c != "within2_after"]
         parts.append(
             "<h3>Investigation: alternatives against the defaults</h3>"
             "<p>mean |z| over Tables 4 (parameters, SNR) and 5, before (defaults) and "
@@ -1072,7 +996,7 @@ def build_report(
 
 
 def _cmd(args: argparse.Namespace) -> int:
-    from hbench.cli import check_output
+    from hbench.system.writable import check_output
 
     if args.out:  # before any work: a folder one can write in
         check_output(args.out, "--out", folder=True)

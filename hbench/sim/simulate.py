@@ -22,8 +22,8 @@ from hbench.model.noise import NoiseModel
 from hbench.model.nonlinearities import Nonlinearity
 from hbench.model.plants import DiscretePlant, PlantModel
 from hbench.model.signals import Reference
-from hbench.numerics import kernels
 from hbench.numerics.ordered import ordered_products
+from hbench.sim import loop_kernel
 from hbench.sim.records import Record, Truth
 from hbench.sim.seeding import as_generator, run_streams
 from hbench.system import limits
@@ -211,13 +211,13 @@ def _run_loop(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The closed loop over slow time. Returns ``(y0, x, U)``.
 
-    Runs compiled (:func:`hbench.numerics.kernels.closed_loop`, the same numbers) for the built-in
+    Runs compiled (:func:`hbench.sim.loop_kernel.closed_loop`, the same numbers) for the built-in
     actuators and controllers; the numpy loop below is the reference and serves the others.
     Its products sum in a fixed order (:func:`hbench.numerics.ordered.ordered_products`): the same
     on
     any machine and for any batch, and what the kernel mirrors.
     """
-    compiled = kernels.closed_loop(lp, controller, nonlinearity, r, v[:, ::p], p)
+    compiled = loop_kernel.closed_loop(lp, controller, nonlinearity, r, v[:, ::p], p)
     if compiled is not None:
         return compiled
     R, K = r.shape

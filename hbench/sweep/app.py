@@ -40,16 +40,13 @@ from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-from hbench.bench.schema import TIDY_COLUMNS
 from hbench.errors import AggregationError, InputError, tell
+from hbench.sweep.jobs import DONE, ROWS, normalise, read_marker
 
 EXAMPLE = (
     "hbench sweep -m noise.snr=2,5,20 scenario.p=3,5,8 plant.delay=0,2,7 "
     "method=wang-lsm,bai-fu runs=20"
 )
-#: Job markers and files.
-DONE = "DONE"
-ROWS = "rows.parquet"
 #: Environment variable (set through hydra.job.env_set) holding the number of jobs of a sweep.
 JOBS_ENV = "HBENCH_SWEEP_JOBS"
 #: Environment variable (likewise) holding the process id of ``hbench sweep``: a job running in
@@ -291,7 +288,7 @@ def validate(overrides: Sequence[str], multirun: bool = False, launch: bool = Tr
         first = [v[0] for v in axes.values()]
         base = compose_checked(first)
         if launch:  # Hydra's resolved output folder (out=, hydra.run.dir=, hydra.sweep.dir=)
-            from hbench.cli import check_output
+            from hbench.system.writable import check_output
 
             if base.get("out") is not None and not str(base.out).strip():
                 raise InputError(
@@ -525,17 +522,6 @@ def _say(msg: str) -> None:
     """A progress line on stderr. Progress is advisory: a closed stderr (``2>&1 | head``) never
     stops or fails a job."""
     tell(f"[hbench sweep] {msg}")
-
-
-def read_marker(marker: Path) -> dict[str, Any] | None:
-    """A ``DONE`` marker's content, or None where it cannot be read."""
-    import json
-
-    try:
-        held = json.loads(marker.read_text())
-    except (OSError, ValueError):
-        return None
-    return held if isinstance(held, dict) else None
 
 
 def job_complete(folder: Path, held: dict[str, Any]) -> bool:
@@ -825,34 +811,3 @@ def failed_rows(data: dict[str, Any], scenario: Any, seq: Any, cell: str, messag
         for q in (*runner.QUANTITIES, *true)
     ]
     return pd.DataFrame(rows, columns=list(runner.TIDY_COLUMNS))
-
-
-#: Tidy columns of ``rows.parquet``: the runner's plus ``job`` (the run id of the job).
-ROW_COLUMNS = (*TIDY_COLUMNS, "job")
-_INT = ("p", "delay", "run")
-_FLOAT = ("sigma2", "snr_target", "value", "true", "snr")
-#: Deterministic order of rows (aggregation sums in this order: bit-identical tables).
-SORT_KEYS = [
-    "method",
-    "nonlinearity",
-    "p",
-    "delay",
-    "sigma2",
-    "snr_target",
-    "cell",
-    "run",
-    "quantity",
-    "job",
-]
-
-
-def normalise(rows: Any) -> Any:
-    """Columns in order with fixed dtypes, rows in :data:`SORT_KEYS` order."""
-    rows = rows.reindex(columns=list(ROW_COLUMNS)).copy()
-    for c in _INT:
-        rows[c] = rows[c].astype("int64")
-    for c in _FLOAT:
-        rows[c] = rows[c].astype("float64")
-    for c in set(ROW_COLUMNS) - set(_INT) - set(_FLOAT):
-        rows[c] = rows[c].fillna("").astype(str)
-    return rows.sort_values(SORT_KEYS, kind="mergesort", na_position="first").reset_index(drop=True)

@@ -29,7 +29,7 @@ def collect_rows(root: Path) -> tuple[Any, list[Path]]:
     """All rows of the finished jobs under ``root`` (None if there are none) and their folders."""
     import pandas as pd
 
-    from hbench.sweep.app import DONE, ROWS, SORT_KEYS, normalise, read_marker
+    from hbench.sweep.jobs import DONE, ROWS, SORT_KEYS, normalise, read_marker
 
     seen: dict[str, Path] = {}
     frames = []
@@ -65,7 +65,7 @@ def collect_rows(root: Path) -> tuple[Any, list[Path]]:
 
 def aggregate_dir(root: Path, quiet: bool = False) -> dict[str, Path]:
     """Aggregate the finished jobs under ``root`` into tables and ``rows.parquet`` in ``root``."""
-    from hbench.sweep.app import DONE, ROWS
+    from hbench.sweep.jobs import DONE, ROWS
     from hbench.tables import results
 
     root = Path(root)

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from hbench.numerics import kernels
+from hbench.bench import kernel_status
 from hbench.system import atomic
 
 #: The columns that name a cell (and the method), first in every aggregated table.
@@ -487,7 +487,7 @@ def provenance(
         "git_revision": git_revision(),
         "versions": versions,
         # which path computed the numbers (the same bits either way: hbench.numerics.kernels)
-        "kernels": kernels.status(),
+        "kernels": kernel_status.status(),
         "python": platform.python_version(),
         "platform": platform.platform(),
         "created": datetime.now(UTC).isoformat(timespec="seconds"),

@@ -1,0 +1,44 @@
+"""Deprecated top-level module names (``hbench.simulate``, ...) that forward to the packages.
+
+A deprecated name forwards each attribute read from it to the module's new path with a
+:class:`DeprecationWarning` naming that path; nothing is imported and no process-wide state
+(import hooks, ``sys.modules``) is touched until a name is read.
+"""
+
+import importlib
+import warnings
+from collections.abc import Callable, Iterable
+from typing import Any
+
+
+def forward(old: str, new: str, submodules: Iterable[str] = ()) -> Callable[[str], Any]:
+    """A module ``__getattr__`` that serves the deprecated module ``old`` from ``new``.
+
+    Parameters
+    ----------
+    old : str
+        The deprecated module's name (its ``__name__``).
+    new : str
+        The module that now holds its names.
+    submodules : iterable of str
+        Names that are the package ``old``'s own submodules (not forwarded, so that
+        ``from old import submodule`` imports it without a warning).
+
+    Returns
+    -------
+    callable
+        ``__getattr__(name)``: warns and returns ``new``'s attribute ``name``.
+    """
+    own = frozenset(submodules)
+
+    def __getattr__(name: str) -> Any:
+        if name in own or (name.startswith("__") and name.endswith("__")):
+            raise AttributeError(f"module {old!r} has no attribute {name!r}")
+        warnings.warn(
+            f"{old} is deprecated: import {name} from {new}",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return getattr(importlib.import_module(new), name)
+
+    return __getattr__

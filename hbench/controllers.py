@@ -1,0 +1,6 @@
+"""Deprecated name of :mod:`hbench.model.controllers`: each name read from here warns and comes
+from there."""
+
+from hbench.aliases import forward
+
+__getattr__ = forward(__name__, "hbench.model.controllers")

@@ -1,0 +1,14 @@
+"""The public path of :mod:`hbench.sim.records` for plugins: every name of that module, under
+this name too (a stable name for plugins, without a warning)."""
+
+from typing import Any
+
+from hbench.sim import records as _module
+
+
+def __getattr__(name: str) -> Any:
+    return getattr(_module, name)
+
+
+def __dir__() -> list[str]:
+    return dir(_module)
