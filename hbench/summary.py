@@ -97,6 +97,11 @@ def _cells(rows: pd.DataFrame) -> pd.DataFrame:
 _GROUP = ["nonlinearity", "p", "delay", "_s2", "_st"]
 
 
+def _methods(rows: pd.DataFrame) -> list[str]:
+    """The methods of ``rows`` in order of appearance."""
+    return [str(m) for m in rows["method"].unique()]
+
+
 def _paired(values: pd.DataFrame, a: str, b: str) -> tuple[float, float, float, int]:
     """Mean of ``a - b`` over the runs both have, its interval, and the number of pairs."""
     both = values[[a, b]].dropna()
@@ -134,7 +139,7 @@ def summary(
     """
     r = _cells(rows)
     fit = r[r["quantity"] == "fitness"]
-    methods = list(dict.fromkeys(rows["method"]))
+    methods = _methods(rows)
     out = []
     for _, g in fit.groupby(_GROUP, sort=True, dropna=False):
         first = g.iloc[0]
@@ -205,7 +210,8 @@ def bias_summary(
         published mean - the true value (where one is published).
     """
     r = _cells(rows)
-    par = r[r["quantity"].str.fullmatch(r"[ab]\d+") & ~r["method"].map(bound).astype(bool)]
+    bounds = [m for m in _methods(r) if bound(m)]  # asked once per method, not per row
+    par = r[r["quantity"].str.fullmatch(r"[ab]\d+") & ~r["method"].isin(bounds)]
     out = []
     for _, g in par.groupby(["method", *_GROUP, "quantity"], sort=False, dropna=False):
         first = g.iloc[0]
@@ -229,7 +235,7 @@ def bias_summary(
     published = _paper_column(table, paper, ["method", "sigma2", "parameter"])
     table["paper_bias"] = published - table["true"]
     table["_par"] = table["parameter"].map(lambda p: (p[0], int(p[1:])))
-    return _sorted(table, list(dict.fromkeys(rows["method"])), ["_par"]).drop(columns="_par")
+    return _sorted(table, _methods(rows), ["_par"]).drop(columns="_par")
 
 
 def _paper_column(table: pd.DataFrame, paper: pd.DataFrame | None, on: list[str]) -> pd.Series:
