@@ -14,6 +14,7 @@ difference for the comparison between methods.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Iterable
 
@@ -71,8 +72,6 @@ def t_interval(
 
     One value gives its mean and an unknown (nan) interval; none gives nan throughout.
     """
-    from scipy import stats
-
     v = np.asarray(list(values), float)
     v = v[np.isfinite(v)]
     if v.size == 0:
@@ -80,8 +79,17 @@ def t_interval(
     mean = float(v.mean())
     if v.size < 2:
         return mean, math.nan, math.nan
-    half = float(stats.t.ppf(0.5 + confidence / 2, v.size - 1) * v.std(ddof=1) / math.sqrt(v.size))
+    half = float(_t_quantile(0.5 + confidence / 2, v.size - 1) * v.std(ddof=1) / math.sqrt(v.size))
     return mean, mean - half, mean + half
+
+
+@functools.lru_cache(maxsize=256)
+def _t_quantile(q: float, df: int) -> float:
+    """Student t's ``q`` quantile with ``df`` degrees of freedom (a table's cells mostly share
+    ``df``: each asked of scipy once)."""
+    from scipy import stats
+
+    return stats.t.ppf(q, df)
 
 
 def _cells(rows: pd.DataFrame) -> pd.DataFrame:
