@@ -38,7 +38,22 @@ PHASES = (
 
 
 def cumulative(stats: pstats.Stats, suffix: str, name: str) -> float:
-    """Cumulative seconds of the functions ``name`` defined in a file ending in ``suffix``."""
+    """Cumulative seconds of the functions ``name`` defined in a file ending in ``suffix``.
+
+    Parameters
+    ----------
+    stats : pstats.Stats
+        The profile.
+    suffix : str
+        The end of the defining file's path (e.g. ``"hbench/report.py"``).
+    name : str
+        The function's name.
+
+    Returns
+    -------
+    float
+        The sum of their cumulative times (a recursive function counted once per outer call).
+    """
     return sum(
         row[3]
         for (path, _, func), row in stats.stats.items()  # type: ignore[attr-defined]
