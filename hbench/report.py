@@ -220,7 +220,8 @@ def _merge_identical(bias: Any) -> Any:
 def cell_stats(rows: Any) -> dict[str, Any]:
     """Per-cell statistics the figures and tables need (the cell key includes ``snr_target``)."""
     keys = ["method", "nonlinearity", "p", "delay", "sigma2", "snr_target"]
-    r = rows.copy()
+    # the columns read below: every other column would be copied along by each selection
+    r = rows[[*keys, "run", "snr", "status", "quantity", "value", "true"]].copy()
     for k in ("sigma2", "snr_target"):
         r[k] = r[k].astype(float)
     r["_s2"] = r["sigma2"].fillna(-1.0)

@@ -120,9 +120,11 @@ def _by_cell(
     Groups by ``method, nonlinearity, p, delay`` and :func:`level_key` (column :data:`LEVEL`),
     then ``by``; ``aggs`` are pandas named aggregations. ``sigma2`` is empty for SNR cells.
     """
-    picked = rows[(select & (rows["status"] == "ok")).to_numpy()]
-    picked = picked.assign(**{LEVEL: level_key(picked)})
     keys = ["method", "nonlinearity", "p", "delay", LEVEL, *by]
+    # only the columns read: every other column would be copied along by the selection
+    read = dict.fromkeys([*keys[:4], "sigma2", "snr_target", *by, *(a[0] for a in aggs.values())])
+    picked = rows.loc[(select & (rows["status"] == "ok")).to_numpy(), list(read)]
+    picked = picked.assign(**{LEVEL: level_key(picked)})
     table = (
         picked.groupby(keys, sort=True, dropna=False)
         .agg(sigma2=("sigma2", "first"), **aggs)

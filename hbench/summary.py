@@ -93,8 +93,9 @@ def _t_quantile(q: float, df: int) -> float:
 
 
 def _cells(rows: pd.DataFrame) -> pd.DataFrame:
-    """The ok rows with the cell columns as floats (missing levels as nan, grouped together)."""
-    r = rows[rows["status"] == "ok"].copy()
+    """The ok rows with the cell columns as floats (missing levels as nan, grouped together):
+    only the columns the summaries read (every other column taken along would be copied)."""
+    r = rows.loc[rows["status"] == "ok", _READ].copy()
     for col in ("sigma2", "snr_target"):
         r[col] = pd.to_numeric(r[col], errors="coerce").astype(float)
     r["_s2"] = r["sigma2"].fillna(-1.0)
@@ -103,6 +104,8 @@ def _cells(rows: pd.DataFrame) -> pd.DataFrame:
 
 
 _GROUP = ["nonlinearity", "p", "delay", "_s2", "_st"]
+#: The columns of the tidy rows the summaries read.
+_READ = ["method", *CELL, "run", "seed", "quantity", "value", "true"]
 
 
 def _methods(rows: pd.DataFrame) -> list[str]:
