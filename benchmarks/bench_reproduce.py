@@ -15,12 +15,16 @@ revision (``git archive REV | tar -x -C DIR`` and its compiled ``hbench/numerics
 copied
 in); ``test_reproduce[baseline-*]`` then runs that tree with this environment's interpreter in the
 same run as ``test_reproduce[this-*]``, and the later of each pair records
-``ratio_to_baseline`` (this / baseline). Without the variable the baseline cases are skipped.
+``ratio_to_baseline`` (wall, this / baseline) and ``cpu_ratio_to_baseline`` (CPU seconds of
+all the run's processes, user + system: the figure that moves least with the machine's load).
+Each case records the load average (``load_average``: the higher of before and after). Without
+the variable the baseline cases are skipped.
 """
 
 from __future__ import annotations
 
 import os
+import resource
 import subprocess
 import sys
 from pathlib import Path
@@ -37,6 +41,12 @@ from tests.test_sls import rows_gram
 _seconds: dict[str, float] = {}
 BASELINE = os.environ.get("HBENCH_BENCH_BASELINE")
 TARGETS = {100: 3.0, 1000: 4.0}
+
+
+def _cpu_children() -> float:
+    """CPU seconds (user + system) of the finished child processes of this one."""
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
 
 
 def _hbench(*args: str, tree: str | None = None) -> subprocess.CompletedProcess[str]:
@@ -71,25 +81,48 @@ def test_reproduce(benchmark: BenchmarkFixture, tmp_path: Path, which: str, runs
         out = str(tmp_path / f"r{next(counter)}")
         return ("reproduce", "--runs", str(runs), "--out", out), {"tree": tree}
 
-    def run(*args, tree):
-        return _hbench(*args, tree=tree)
+    cpu: list[float] = []
 
+    def run(*args, tree):
+        before = _cpu_children()
+        proc = _hbench(*args, tree=tree)
+        cpu.append(_cpu_children() - before)
+        return proc
+
+    load = os.getloadavg()[0]
     proc = benchmark.pedantic(run, setup=setup, rounds=3, iterations=1)
     assert "scored cells" in proc.stdout
     wall = benchmark.stats.stats.mean
-    _seconds[f"{which}-{runs}"] = wall
-    benchmark.extra_info.update(wall_seconds=wall, target_seconds=TARGETS[runs])
-    other = _seconds.get(f"{'this' if which == 'baseline' else 'baseline'}-{runs}")
-    if other:
-        ratio = wall / other if which == "this" else other / wall
-        benchmark.extra_info["ratio_to_baseline"] = ratio
-    line = f"\nhbench reproduce --runs {runs} ({which}): {wall:.2f} s wall"
+    key = f"{which}-{runs}"
+    _seconds[key], _seconds[f"cpu-{key}"] = wall, sum(cpu) / len(cpu)
+    benchmark.extra_info.update(
+        wall_seconds=wall,
+        cpu_seconds=_seconds[f"cpu-{key}"],
+        target_seconds=TARGETS[runs],
+        load_average=max(load, os.getloadavg()[0]),
+    )
+    other_key = f"{'this' if which == 'baseline' else 'baseline'}-{runs}"
+    if other_key in _seconds:
+        this_key = f"this-{runs}"
+        base_key = f"baseline-{runs}"
+        benchmark.extra_info["ratio_to_baseline"] = _seconds[this_key] / _seconds[base_key]
+        benchmark.extra_info["cpu_ratio_to_baseline"] = (
+            _seconds[f"cpu-{this_key}"] / _seconds[f"cpu-{base_key}"]
+        )
+    line = (
+        f"\nhbench reproduce --runs {runs} ({which}): {wall:.2f} s wall, "
+        f"{_seconds[f'cpu-{key}']:.2f} s CPU, "
+        f"load average {benchmark.extra_info['load_average']:.1f}"
+    )
     if which == "this":
-        line += f" (target {TARGETS[runs]:g} s)"
+        line += f" (target {TARGETS[runs]:g} s wall on the idle machine)"
     if "startup" in _seconds:
         line += f"; start-up {_seconds['startup']:.2f} s"
-    if other:
-        line += f"; this/baseline {benchmark.extra_info['ratio_to_baseline']:.2f}"
+    if "ratio_to_baseline" in benchmark.extra_info:
+        line += (
+            f"; this/baseline: wall {benchmark.extra_info['ratio_to_baseline']:.2f}, "
+            f"CPU {benchmark.extra_info['cpu_ratio_to_baseline']:.2f}"
+        )
     print(line)
 
 

@@ -335,3 +335,25 @@ def test_new_output_dir_concurrent_runs(tmp_path: Path, monkeypatch) -> None:
         t.join()
     assert not errors
     assert len(set(made)) == n and all(p.is_dir() for p in made)
+
+
+def test_tables_computed_once_write_and_show_the_same(tmp_path: Path) -> None:
+    """``aggregated_tables`` passed to ``write_tables`` and ``build_report`` (as the reproduction
+    does, computing them once) give the same files as each computing them itself, and neither
+    changes the tables it was given (the report shows the oracle's label, not its name)."""
+    rows = level_rows(sigma2s=SIGMA2S)
+    rows["method"] = rows["method"].replace("bai-fu", "oracle")
+    tables = results.aggregated_tables(rows)
+    kept = {name: table.copy() for name, table in tables.items()}
+    own, given = tmp_path / "own", tmp_path / "given"
+    results.write_tables(rows, own)
+    results.write_tables(rows, given, tables=tables)
+    report.build_report(own, own / "report", rows=rows)
+    report.build_report(given, given / "report", rows=rows, tables=tables)
+    stems = ("fitness", "bias", "structure")
+    names = [f"{n}.{ext}" for n in stems for ext in ("csv", "md", "tex")]
+    names += [f"report/{n}.{ext}" for n in stems for ext in ("md", "tex")]
+    for name in names:
+        assert (own / name).read_bytes() == (given / name).read_bytes(), name
+    for name, table in tables.items():
+        pd.testing.assert_frame_equal(table, kept[name])

@@ -214,7 +214,8 @@ def reproduce(
     summary = summarise(comparison)
     steps, steps_text = steps_comparison(values, comparison, config)
 
-    res.write_tables(rows, out_dir)
+    tables = res.aggregated_tables(rows)  # written here, shown by the report
+    res.write_tables(rows, out_dir, tables=tables)
     comparison.to_csv(out_dir / "reproduce.csv", index=False, float_format="%.10g")
     write_display_tables(comparison, out_dir, realisations=int(tab["runs"]))
     selection_text = (
@@ -272,7 +273,7 @@ def reproduce(
     if report:
         from hbench.report import build as rep
 
-        path = rep.build_report(out_dir, out_dir / "report", rows=rows, jobs=jobs)
+        path = rep.build_report(out_dir, out_dir / "report", rows=rows, tables=tables, jobs=jobs)
     rows.to_parquet(out_dir / "rows.parquet", index=False)  # last: no fork after pyarrow
     print(summary.text() + selection_text + "\n" + steps_text, end="")
     if report:

@@ -221,7 +221,8 @@ def _merge_identical(bias: Any) -> Any:
 def cell_stats(rows: Any) -> dict[str, Any]:
     """Per-cell statistics the figures and tables need (the cell key includes ``snr_target``)."""
     keys = ["method", "nonlinearity", "p", "delay", "sigma2", "snr_target"]
-    r = rows.copy()
+    # the columns read below: every other column would be copied along by each selection
+    r = rows[[*keys, "run", "snr", "status", "quantity", "value", "true"]].copy()
     for k in ("sigma2", "snr_target"):
         r[k] = r[k].astype(float)
     r["_s2"] = r["sigma2"].fillna(-1.0)
@@ -315,20 +316,22 @@ def run_table(rows: Any) -> Any:
     return runs.reset_index(drop=True)
 
 
-def status_counts(rows: Any) -> dict[str, int]:
+def status_counts(rows: Any, runs: Any = None) -> dict[str, int]:
     """Runs per status over all methods and cells.
 
     Parameters
     ----------
     rows : DataFrame
         Tidy rows (:data:`hbench.bench.schema.TIDY_COLUMNS`).
+    runs : DataFrame, optional
+        :func:`run_table` of ``rows`` when already computed.
 
     Returns
     -------
     dict of str -> int
         ``{status: runs}``, most frequent first (a run is one method on one realisation).
     """
-    counts = run_table(rows)["status"].value_counts()
+    counts = (run_table(rows) if runs is None else runs)["status"].value_counts()
     return {str(k): int(v) for k, v in counts.items()}
 
 
@@ -339,7 +342,7 @@ def _message(error: Any, width: int) -> str:
     return text if len(text) <= width else text[: max(width - 3, 1)] + "..."
 
 
-def failure_table(rows: Any, messages: int = 3, width: int = 200) -> Any:
+def failure_table(rows: Any, messages: int = 3, width: int = 200, runs: Any = None) -> Any:
     """Per method and cell with a run that produced no estimate: the status counts and why.
 
     Parameters
@@ -352,6 +355,8 @@ def failure_table(rows: Any, messages: int = 3, width: int = 200) -> Any:
     width : int
         Characters kept of each message (a cut one ends in ``...``; the rows' ``error`` column
         holds it whole).
+    runs : DataFrame, optional
+        :func:`run_table` of ``rows`` when already computed (not modified).
 
     Returns
     -------
@@ -366,7 +371,7 @@ def failure_table(rows: Any, messages: int = 3, width: int = 200) -> Any:
     """
     import pandas as pd
 
-    runs = run_table(rows)
+    runs = run_table(rows) if runs is None else runs.copy()
     for col in CELL_COLUMNS:
         if col not in runs.columns:
             runs[col] = math.nan
@@ -757,6 +762,7 @@ def build_report(
     out: Path | str | None = None,
     *,
     rows: Any = None,
+    tables: Mapping[str, Any] | None = None,
     jobs: int = 1,
     extra_figures: Sequence[Any] = (),
     spread: str = "ci",
@@ -766,13 +772,15 @@ def build_report(
     ``spread`` is what the fitness figure's error bars show: ``"ci"`` the 95 % interval of the
     mean, ``"std"`` one standard deviation over the runs.
 
-    ``rows`` (already in memory) skips reading ``rows.parquet``; ``jobs > 1`` renders the
-    figures in forked worker processes; ``extra_figures`` (:data:`hbench.report.figures.FigureSpec`)
-    are rendered in the same batch (the reproduction's Figures 4 and 5).
+    ``rows`` (already in memory) skips reading ``rows.parquet``; ``tables``, the rows'
+    :func:`hbench.tables.results.aggregated_tables` when already computed (e.g. for
+    :func:`hbench.tables.results.write_tables`), are not computed again; ``jobs > 1`` renders
+    the figures in worker processes (:mod:`hbench.bench.parallel`); ``extra_figures``
+    (:data:`hbench.report.figures.FigureSpec`) are rendered in the same batch (the reproduction's Figures 4 and 5).
     """
     from hbench.report import beyond as report_beyond
     from hbench.report import figures
-    from hbench.tables.results import aggregate, display_table, new_output_dir, structure
+    from hbench.tables.results import aggregated_tables, new_output_dir
 
     if spread not in figures.SPREADS:  # before any work
         raise InputError(f"--spread must be one of {', '.join(figures.SPREADS)}, got {spread!r}")
@@ -802,14 +810,18 @@ def build_report(
         by=["parameter"],
     )
     # as the renderings show them: SNR cells told apart (column snr_target), sorted by level
-    fitness_table, bias_table = (display_table(t) for t in aggregate(rows, level=True))
-    structure_table = display_table(structure(rows, level=True))
+    if tables is None:
+        tables = aggregated_tables(rows)
+    fitness_table, bias_table, structure_table = (
+        tables[name].copy() for name in ("fitness", "bias", "structure")
+    )
     ranking = stats["ranking"]
     timing = stats["timing"].rename(columns={"mean": "seconds_mean", "std": "seconds_std"})
-    failures = failure_table(rows)
+    runs = run_table(rows)  # read by the failures table and the status counts
+    failures = failure_table(rows, runs=runs)
     for frame in (fitness_table, bias_table, structure_table, ranking, timing, failures):
         frame["method"] = frame["method"].map(method_label)  # the label in place of the name
-    counts = status_counts(rows)
+    counts = status_counts(rows, runs=runs)
     status_line = ", ".join(f"{k} {v}" for k, v in counts.items())
     none_ok = counts.get("ok", 0) == 0
     tables = {

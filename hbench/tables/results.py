@@ -121,9 +121,11 @@ def _by_cell(
     Groups by ``method, nonlinearity, p, delay`` and :func:`level_key` (column :data:`LEVEL`),
     then ``by``; ``aggs`` are pandas named aggregations. ``sigma2`` is empty for SNR cells.
     """
-    picked = rows[(select & (rows["status"] == "ok")).to_numpy()]
-    picked = picked.assign(**{LEVEL: level_key(picked)})
     keys = ["method", "nonlinearity", "p", "delay", LEVEL, *by]
+    # only the columns read: every other column would be copied along by the selection
+    read = dict.fromkeys([*keys[:4], "sigma2", "snr_target", *by, *(a[0] for a in aggs.values())])
+    picked = rows.loc[(select & (rows["status"] == "ok")).to_numpy(), list(read)]
+    picked = picked.assign(**{LEVEL: level_key(picked)})
     table = (
         picked.groupby(keys, sort=True, dropna=False)
         .agg(sigma2=("sigma2", "first"), **aggs)
@@ -408,7 +410,36 @@ def to_latex(table: pd.DataFrame, caption: str = "", floatfmt: str = ".4g", labe
     return "\n".join(out) + "\n"
 
 
-def write_tables(rows: pd.DataFrame, out: Path) -> dict[str, Path]:
+def aggregated_tables(rows: pd.DataFrame) -> dict[str, pd.DataFrame]:
+    """The fitness, bias and structure tables of ``rows`` as the files and the report show them.
+
+    Parameters
+    ----------
+    rows : DataFrame
+        Tidy rows (:data:`hbench.schema.TIDY_COLUMNS`).
+
+    Returns
+    -------
+    dict of str -> DataFrame
+        ``{"fitness": ..., "bias": ..., "structure": ...}``: :func:`aggregate` and
+        :func:`structure` with the column :data:`LEVEL`, each through :func:`display_table`.
+        Computed once, they are what :func:`write_tables` writes and what
+        :func:`hbench.report.build_report` shows (its ``tables``).
+    """
+    fitness, bias = aggregate(rows, level=True)
+    return {
+        name: display_table(table)
+        for name, table in (
+            ("fitness", fitness),
+            ("bias", bias),
+            ("structure", structure(rows, level=True)),
+        )
+    }
+
+
+def write_tables(
+    rows: pd.DataFrame, out: Path, tables: Mapping[str, pd.DataFrame] | None = None
+) -> dict[str, Path]:
     """Aggregate ``rows`` and write fitness, bias and structure into ``out``.
 
     Parameters
@@ -417,6 +448,8 @@ def write_tables(rows: pd.DataFrame, out: Path) -> dict[str, Path]:
         Tidy rows (:data:`hbench.bench.schema.TIDY_COLUMNS`).
     out : Path
         The folder (made if missing).
+    tables : mapping of str -> DataFrame, optional
+        :func:`aggregated_tables` of ``rows`` when already computed (not computed again).
 
     Returns
     -------
@@ -427,15 +460,10 @@ def write_tables(rows: pd.DataFrame, out: Path) -> dict[str, Path]:
         after ``sigma2`` when a cell is given by a target SNR), rows sorted by level.
     """
     out.mkdir(parents=True, exist_ok=True)
-    fitness, bias = aggregate(rows, level=True)
     paths = {}
-    for name, table in (
-        ("fitness", fitness),
-        ("bias", bias),
-        ("structure", structure(rows, level=True)),
-    ):
+    # the CSV, Markdown and LaTeX files: same columns, same order
+    for name, shown in (aggregated_tables(rows) if tables is None else tables).items():
         paths[f"{name}.csv"] = out / f"{name}.csv"
-        shown = display_table(table)  # the CSV, Markdown and LaTeX files: same columns, order
         atomic.write_text(paths[f"{name}.csv"], shown.to_csv(index=False, float_format="%.10g"))
         atomic.write_text(out / f"{name}.md", to_markdown(shown))
         tex = to_latex(shown, caption=f"hbench {name}", label=f"tab:hbench-{name}")

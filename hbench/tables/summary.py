@@ -14,6 +14,7 @@ difference for the comparison between methods.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Iterable
 
@@ -71,8 +72,6 @@ def t_interval(
 
     One value gives its mean and an unknown (nan) interval; none gives nan throughout.
     """
-    from scipy import stats
-
     v = np.asarray(list(values), float)
     v = v[np.isfinite(v)]
     if v.size == 0:
@@ -80,13 +79,23 @@ def t_interval(
     mean = float(v.mean())
     if v.size < 2:
         return mean, math.nan, math.nan
-    half = float(stats.t.ppf(0.5 + confidence / 2, v.size - 1) * v.std(ddof=1) / math.sqrt(v.size))
+    half = float(_t_quantile(0.5 + confidence / 2, v.size - 1) * v.std(ddof=1) / math.sqrt(v.size))
     return mean, mean - half, mean + half
 
 
+@functools.lru_cache(maxsize=256)
+def _t_quantile(q: float, df: int) -> float:
+    """Student t's ``q`` quantile with ``df`` degrees of freedom (a table's cells mostly share
+    ``df``: each asked of scipy once)."""
+    from scipy import stats
+
+    return stats.t.ppf(q, df)
+
+
 def _cells(rows: pd.DataFrame) -> pd.DataFrame:
-    """The ok rows with the cell columns as floats (missing levels as nan, grouped together)."""
-    r = rows[rows["status"] == "ok"].copy()
+    """The ok rows with the cell columns as floats (missing levels as nan, grouped together):
+    only the columns the summaries read (every other column taken along would be copied)."""
+    r = rows.loc[rows["status"] == "ok", _READ].copy()
     for col in ("sigma2", "snr_target"):
         r[col] = pd.to_numeric(r[col], errors="coerce").astype(float)
     r["_s2"] = r["sigma2"].fillna(-1.0)
@@ -95,6 +104,13 @@ def _cells(rows: pd.DataFrame) -> pd.DataFrame:
 
 
 _GROUP = ["nonlinearity", "p", "delay", "_s2", "_st"]
+#: The columns of the tidy rows the summaries read.
+_READ = ["method", *CELL, "run", "seed", "quantity", "value", "true"]
+
+
+def _methods(rows: pd.DataFrame) -> list[str]:
+    """The methods of ``rows`` in order of appearance."""
+    return [str(m) for m in rows["method"].unique()]
 
 
 def _paired(values: pd.DataFrame, a: str, b: str) -> tuple[float, float, float, int]:
@@ -134,7 +150,7 @@ def summary(
     """
     r = _cells(rows)
     fit = r[r["quantity"] == "fitness"]
-    methods = list(dict.fromkeys(rows["method"]))
+    methods = _methods(rows)
     out = []
     for _, g in fit.groupby(_GROUP, sort=True, dropna=False):
         first = g.iloc[0]
@@ -205,7 +221,8 @@ def bias_summary(
         published mean - the true value (where one is published).
     """
     r = _cells(rows)
-    par = r[r["quantity"].str.fullmatch(r"[ab]\d+") & ~r["method"].map(bound).astype(bool)]
+    bounds = [m for m in _methods(r) if bound(m)]  # asked once per method, not per row
+    par = r[r["quantity"].str.fullmatch(r"[ab]\d+") & ~r["method"].isin(bounds)]
     out = []
     for _, g in par.groupby(["method", *_GROUP, "quantity"], sort=False, dropna=False):
         first = g.iloc[0]
@@ -229,7 +246,7 @@ def bias_summary(
     published = _paper_column(table, paper, ["method", "sigma2", "parameter"])
     table["paper_bias"] = published - table["true"]
     table["_par"] = table["parameter"].map(lambda p: (p[0], int(p[1:])))
-    return _sorted(table, list(dict.fromkeys(rows["method"])), ["_par"]).drop(columns="_par")
+    return _sorted(table, _methods(rows), ["_par"]).drop(columns="_par")
 
 
 def _paper_column(table: pd.DataFrame, paper: pd.DataFrame | None, on: list[str]) -> pd.Series:
