@@ -1,8 +1,8 @@
 """End to end on the paper's example: simulate + wang-lsm + wang-iv + bai-fu + oracle + metrics +
 tidy rows, batched, against the naive baseline of ``naive.py`` in the same run.
 
-* ``test_end_to_end[jobs]``: :func:`hbench.bench.runner.run_cell` on 1000 runs in batches of 200 (the
-  default chunk), in one process (``jobs=1``), this one and a worker process started per cell
+* ``test_end_to_end[jobs]``: :func:`hbench.bench.runner.run_cell` on 1000 runs in batches of 200
+  (the default chunk), in one process (``jobs=1``), this one and a worker process started per cell
   (``jobs=2``) or kept for the scope (``2-kept``, :func:`hbench.bench.parallel.kept_workers`, as
   ``hbench sweep`` runs cells). Every round records its CPU seconds (this process and its reaped
   children) and page faults; the ``jobs=2`` cases split their speed-up into cores kept busy x one
@@ -88,8 +88,8 @@ def _kept_pids() -> list[int]:
 def test_end_to_end(
     benchmark: BenchmarkFixture, paper_scenario: Scenario, jobs: int, kept: bool
 ) -> None:
-    """``[2-kept]``: the cells inside :func:`hbench.bench.parallel.kept_workers` (as ``hbench sweep``
-    runs them); the warm-up round starts the workers and is timed apart
+    """``[2-kept]``: the cells inside :func:`hbench.bench.parallel.kept_workers` (as
+    ``hbench sweep`` runs them); the warm-up round starts the workers and is timed apart
     (``first_cell_seconds``)."""
     runs = 1000
     methods = methods_from_names(METHODS)

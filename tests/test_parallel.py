@@ -21,8 +21,8 @@ import pandas as pd
 import pytest
 
 from hbench.bench import parallel
-from hbench.numerics import kernels
 from hbench.errors import InputError
+from hbench.numerics import kernels
 
 pytestmark = pytest.mark.skipif(
     "fork" not in mp.get_all_start_methods(),
@@ -201,8 +201,8 @@ def test_kept_workers_exit_when_their_parent_is_killed():
 
 
 def test_run_cell_gives_the_rows_of_one_process_whatever_the_processes_and_chunks():
-    from hbench.sim import scenarios
     from hbench.bench.runner import methods_from_names, run_cell
+    from hbench.sim import scenarios
     from tests.helpers import paper_spec
 
     key = ["method", "run", "quantity"]

@@ -8,9 +8,9 @@ share, and two processes' threads would compete for the same cores), with the al
 settings of :func:`hbench.system.runtime.tune_allocator` (a process hbench starts, so its tuning is
 hbench's to set; ``HBENCH_TUNE_MALLOC=0`` turns it off), and exits when its parent dies.
 
-:func:`map_chunks` computes a cell's chunks (:func:`hbench.bench.runner.run_cell` with ``jobs > 1``):
-the first ``1/jobs`` of them in this process, the others in a pool of ``jobs - 1`` workers
-started for the cell, which receive the cell's work when they start (inherited through the fork,
+:func:`map_chunks` computes a cell's chunks (:func:`hbench.bench.runner.run_cell` with
+``jobs > 1``): the first ``1/jobs`` of them in this process, the others in a pool of
+``jobs - 1`` workers started for the cell, which receive the cell's work when they start (inherited through the fork,
 so it need not pickle) and only ``(start, n)`` with each chunk. Every run draws from its own
 stream and its numbers do not depend on the runs batched with it, so the rows are those of one
 process. What a worker's chunk logs or warns is issued again in this process, in chunk order,
@@ -38,8 +38,8 @@ from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any
 
-from hbench.numerics import kernels
 from hbench.errors import InputError
+from hbench.numerics import kernels
 from hbench.system.runtime import limit_blas_threads, tune_allocator
 
 #: ``fn(work, start, n)``: computes runs ``start .. start + n - 1`` of a cell.

@@ -776,7 +776,8 @@ def build_report(
     :func:`hbench.tables.results.aggregated_tables` when already computed (e.g. for
     :func:`hbench.tables.results.write_tables`), are not computed again; ``jobs > 1`` renders
     the figures in worker processes (:mod:`hbench.bench.parallel`); ``extra_figures``
-    (:data:`hbench.report.figures.FigureSpec`) are rendered in the same batch (the reproduction's Figures 4 and 5).
+    (:data:`hbench.report.figures.FigureSpec`) are rendered in the same batch (the
+    reproduction's Figures 4 and 5).
     """
     from hbench.report import beyond as report_beyond
     from hbench.report import figures

@@ -20,8 +20,8 @@ paper's example (1000 runs, 4 methods, one process, 2-core machine):
 cannot
 be undone (glibc cannot restore its dynamic thresholds), so no library function makes it: the
 ``hbench`` command applies it to its own process (:func:`hbench.cli.main`) and to the launcher
-workers its sweeps start, and every worker process of :func:`hbench.bench.parallel.pool` applies it to
-itself; a program that calls :func:`hbench.bench.runner.run_cell` itself opts in with
+workers its sweeps start, and every worker process of :func:`hbench.bench.parallel.pool`
+applies it to itself; a program that calls :func:`hbench.bench.runner.run_cell` itself opts in with
 :func:`tune_allocator`. It is skipped on other
 C libraries, and ``HBENCH_TUNE_MALLOC=0`` turns it off.
 """
