@@ -9,15 +9,15 @@ settings of :func:`hbench.system.runtime.tune_allocator` (a process hbench start
 hbench's to set; ``HBENCH_TUNE_MALLOC=0`` turns it off), and exits when its parent dies.
 
 :func:`map_chunks` computes a cell's chunks (:func:`hbench.bench.runner.run_cell` with
-``jobs > 1``): the first ``1/jobs`` of them in this process, the others in a pool of
-``jobs - 1`` workers started for the cell, which receive the cell's work when they start (inherited through the fork,
-so it need not pickle) and only ``(start, n)`` with each chunk. Every run draws from its own
+``jobs > 1``): the first ``1/jobs`` of them in this process, the others in a pool of ``jobs - 1``
+workers started for the cell, which receive the cell's work when they start (inherited through the
+fork, so it need not pickle) and only ``(start, n)`` with each chunk. Every run draws from its own
 stream and its numbers do not depend on the runs batched with it, so the rows are those of one
 process. What a worker's chunk logs or warns is issued again in this process, in chunk order,
-through this process's loggers and warning filters. A worker that dies (the OOM killer, a
-signal) never hangs the cell: the cell's chunks it left are computed in this process with a
-:class:`RuntimeWarning`. An exception in a worker's chunk is raised here with the worker's
-traceback in its message (hbench's :class:`~hbench.errors.InputError` as it is).
+through this process's loggers and warning filters. A worker that dies (the OOM killer, a signal)
+never hangs the cell: the cell's chunks it left are computed in this process with a
+:class:`RuntimeWarning`. An exception in a worker's chunk is raised here with the worker's traceback
+in its message (hbench's :class:`~hbench.errors.InputError` as it is).
 """
 
 from __future__ import annotations

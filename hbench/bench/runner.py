@@ -134,11 +134,11 @@ def run_cell(
     keep_example : bool
         Keep run 0's x, true U and each method's U for plots.
     jobs : int
-        Processes computing the chunks: this one and ``jobs - 1`` worker processes, started
-        for the cell, or kept between cells inside :func:`hbench.bench.parallel.kept_workers`
-        (faster for many cells; see :mod:`hbench.bench.parallel`). The rows are the same
-        whatever ``jobs`` (but for the ``seconds`` quantity). With ``jobs > 1`` the cell is cut into a multiple
-        of ``jobs`` chunks of near-equal size (at most ``chunk`` runs each).
+        Processes computing the chunks: this one and ``jobs - 1`` worker processes, started for the
+        cell, or kept between cells inside :func:`hbench.bench.parallel.kept_workers` (faster for
+        many cells; see :mod:`hbench.bench.parallel`). The rows are the same whatever ``jobs`` (but
+        for the ``seconds`` quantity). With ``jobs > 1`` the cell is cut into a multiple of ``jobs``
+        chunks of near-equal size (at most ``chunk`` runs each).
     method_timeout : float, optional
         Seconds a method may take on one chunk (:func:`time_limit`); past them its runs of the
         chunk are ``failed`` with "timed out". None: no limit.
