@@ -80,3 +80,30 @@ def test_a_record_without_r_falls_back_to_the_simulation() -> None:
     rec, _ = simulate(scenarios.build(spec), 1, np.random.default_rng(5))
     d = va.diagnose(dataclasses.replace(rec, r=None), criterion="closed-loop")
     assert d.criterion == "simulation" and "closed-loop" not in d.fits["nominal"]
+
+
+def test_the_cli_chooses_on_the_closed_loop_fit(run_cli, tmp_path) -> None:
+    import json
+
+    from hbench.readers import write_record
+
+    spec = copy.deepcopy(scenarios.PAPER_SECTION6)
+    spec["noise"]["sigma2"] = 1e-3
+    rec, _ = simulate(scenarios.build(spec), 1, np.random.default_rng(6))
+    path = write_record(rec, tmp_path / "r.csv")
+    out = tmp_path / "d.json"
+    status, stdout, err = run_cli(
+        [
+            "diagnose",
+            str(path),
+            "--criterion",
+            "closed-loop",
+            "--controller",
+            "P",
+            "--json",
+            str(out),
+        ]
+    )
+    assert status == 0, err
+    assert json.loads(out.read_text())["criterion"] == "closed-loop"
+    assert "closed-loop" in stdout and "controller P, kp 0.1" in stdout
