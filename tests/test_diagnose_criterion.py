@@ -60,8 +60,9 @@ def test_criteria_are_named_and_checked() -> None:
     assert va.parse_criterion("simulation") == va.Criterion(0)
     assert va.parse_criterion("prediction-12") == va.Criterion(12)
     assert va.Criterion(12).name == "prediction-12" and va.Criterion(0).name == "simulation"
-    assert va.parse_criterion("prediction") is None
-    for bad in ("prediction-0", "prediction-x", "open-loop", "prediction--3", "auto"):
+    for record_dependent in ("prediction", "closed-loop", "auto"):
+        assert va.parse_criterion(record_dependent) is None
+    for bad in ("prediction-0", "prediction-x", "open-loop", "prediction--3", "closed"):
         with pytest.raises(InputError):
             va.parse_criterion(bad)
 

@@ -68,11 +68,20 @@ def add_parser(subparsers: Any) -> None:
     )
     p.add_argument(
         "--criterion",
-        default="simulation",
+        default="auto",
         metavar="C",
-        help="validation criterion the cause is chosen on: simulation (default), prediction "
+        help="validation criterion the cause is chosen on: auto (default: the calibrated "
+        "choice for a record with r, simulation otherwise), simulation, closed-loop "
+        "(re-simulation of the loop from r with the identified controller), prediction "
         "(K-step-ahead with K the nominal noise model's dominant time constant) or "
         "prediction-K",
+    )
+    p.add_argument(
+        "--controller",
+        default="auto",
+        choices=("auto", "P", "PI"),
+        help="structure of the controller the closed-loop criterion identifies from (r - y, x): "
+        "P, PI, or auto (default: the smaller BIC)",
     )
     p.add_argument(
         "--rule",

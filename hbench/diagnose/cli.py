@@ -53,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
     ----------
     args : argparse.Namespace
         The parsed command line (``record, p, json, out, method, fit_fraction,
-        delay_multiple, criterion, rule``).
+        delay_multiple, criterion, rule, controller``).
 
     Returns
     -------
@@ -80,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--delay-multiple must be >= 0, got {args.delay_multiple}")
     if not 0.2 <= args.fit_fraction <= 0.9:
         raise InputError(f"--fit-fraction must lie in [0.2, 0.9], got {args.fit_fraction:g}")
-    parse_criterion(getattr(args, "criterion", "simulation"))  # a bad --criterion: before the work
+    parse_criterion(getattr(args, "criterion", "auto"))  # a bad --criterion: before the work
     reg = registry()
     readers = [reg.get("readers", n) for n in reg.names("readers")] or None
     record = read_record(args.record, p=args.p, readers=readers)
@@ -103,8 +103,9 @@ def run(args: argparse.Namespace) -> int:
                 method=args.method,
                 fit_fraction=args.fit_fraction,
                 delay_multiple=args.delay_multiple,
-                criterion=getattr(args, "criterion", "simulation"),
+                criterion=getattr(args, "criterion", "auto"),
                 rule=getattr(args, "rule", "auto"),
+                controller=getattr(args, "controller", "auto"),
             )
     except InputError:
         # a refused record: its one error line alone (a notice such as "'y' is constant" would

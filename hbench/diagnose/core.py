@@ -12,7 +12,7 @@ library classes sample by sample.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -57,15 +57,26 @@ def backlash_batch(x: np.ndarray, width: Any, g0: Any = 0.5) -> np.ndarray:
     ``u0=None``; ``g0`` in [0, 1] spans the positions the valve may have started at).
     """
     x = np.asarray(x, float)
-    w = np.atleast_1d(np.asarray(width, float))
-    g0 = _col(g0, w.size)
-    half = w / 2
-    out = np.empty((w.size, x.size))
-    u = x[0] + (g0 - 0.5) * w
+    step = BacklashStep(float(x[0]), width, g0)
+    out = np.empty((step.half.size, x.size))
     for k in range(x.size):
-        u = np.maximum(x[k] - half, np.minimum(x[k] + half, u))
-        out[:, k] = u
+        out[:, k] = step(x[k])
     return out
+
+
+class BacklashStep:
+    """The play operator of :func:`backlash_batch` one input at a time (for a loop that
+    computes ``x(k)`` from earlier outputs): started at the first input ``x0``, each call
+    ``step(x_k)`` returns ``u(k)`` for every candidate."""
+
+    def __init__(self, x0: float, width: Any, g0: Any = 0.5) -> None:
+        w = np.atleast_1d(np.asarray(width, float))
+        self.half = w / 2
+        self.u = x0 + (_col(g0, w.size) - 0.5) * w
+
+    def __call__(self, xk: float) -> np.ndarray:
+        self.u = np.maximum(xk - self.half, np.minimum(xk + self.half, self.u))
+        return self.u
 
 
 def stiction_batch(x: np.ndarray, S: Any, J: Any, d0: Any = 1.0, g0: Any = 0.5) -> np.ndarray:
@@ -79,31 +90,41 @@ def stiction_batch(x: np.ndarray, S: Any, J: Any, d0: Any = 1.0, g0: Any = 0.5) 
     ``x(0)``); the record does not say where the valve started, so a fit grids ``d0, g0``.
     """
     x = np.asarray(x, float)
-    S = np.atleast_1d(np.asarray(S, float))
-    C = S.size
-    J = _col(J, C)
-    d = _col(d0, C).copy()
-    g0 = _col(g0, C)
-    h = (S - J) / 2
-    out = np.empty((C, x.size))
-    x_ss = x[0] + d * (g0 * (S + J) - J)
-    u = x_ss - d * h
-    x_prev = x[0]
-    stuck = np.ones(C, bool)
+    step = StictionStep(float(x[0]), S, J, d0, g0)
+    out = np.empty((step.S.size, x.size))
     for k in range(x.size):
-        xk = x[k]
-        sticks = ~stuck & (np.sign(xk - x_prev) != d)
-        x_ss = np.where(sticks, x_prev, x_ss)
-        stuck = stuck | sticks
-        ahead = d * (xk - x_ss)
-        reverse = stuck & (-ahead > S)
-        go_on = stuck & (ahead > J)
-        d = np.where(reverse, -d, d)
-        stuck = stuck & ~(reverse | go_on)
-        u = np.where(stuck, u, xk - d * h)
-        out[:, k] = u
-        x_prev = xk
+        out[:, k] = step(x[k])
     return out
+
+
+class StictionStep:
+    """The stiction rules of :func:`stiction_batch` one input at a time (for a loop that
+    computes ``x(k)`` from earlier outputs): started at the first input ``x0``, each call
+    ``step(x_k)`` returns ``u(k)`` for every candidate."""
+
+    def __init__(self, x0: float, S: Any, J: Any, d0: Any = 1.0, g0: Any = 0.5) -> None:
+        self.S = np.atleast_1d(np.asarray(S, float))
+        C = self.S.size
+        self.J = _col(J, C)
+        self.d = _col(d0, C).copy()
+        self.h = (self.S - self.J) / 2
+        self.x_ss = x0 + self.d * (_col(g0, C) * (self.S + self.J) - self.J)
+        self.u = self.x_ss - self.d * self.h
+        self.x_prev = x0
+        self.stuck = np.ones(C, bool)
+
+    def __call__(self, xk: float) -> np.ndarray:
+        sticks = ~self.stuck & (np.sign(xk - self.x_prev) != self.d)
+        self.x_ss = np.where(sticks, self.x_prev, self.x_ss)
+        stuck = self.stuck | sticks
+        ahead = self.d * (xk - self.x_ss)
+        reverse = stuck & (-ahead > self.S)
+        go_on = stuck & (ahead > self.J)
+        self.d = np.where(reverse, -self.d, self.d)
+        self.stuck = stuck & ~(reverse | go_on)
+        self.u = np.where(self.stuck, self.u, xk - self.d * self.h)
+        self.x_prev = xk
+        return self.u
 
 
 def nl_batch(cls: str, x: np.ndarray, params: dict[str, np.ndarray]) -> np.ndarray:
@@ -136,6 +157,19 @@ def nl_batch(cls: str, x: np.ndarray, params: dict[str, np.ndarray]) -> np.ndarr
 def nl_one(cls: str, x: np.ndarray, theta: dict[str, float]) -> np.ndarray:
     """``f(x; theta)`` for one parameter set, shape ``(K,)``."""
     return nl_batch(cls, x, {k: np.array([v]) for k, v in theta.items()})[0]
+
+
+def nl_stepper(cls: str, theta: dict[str, float], x0: float) -> Callable[[float], float]:
+    """``f(.; theta)`` one input at a time, started at the first input ``x0``: a call with
+    ``x(k)`` returns ``u(k)`` (the memory of backlash and stiction kept between calls), the
+    same numbers as :func:`nl_one` on the whole sequence."""
+    if cls == "backlash":
+        bl = BacklashStep(x0, theta["width"], theta.get("g0", 0.5))
+        return lambda xk: float(bl(xk)[0])
+    if cls == "stiction":
+        st = StictionStep(x0, theta["S"], theta["J"], theta.get("d0", 1.0), theta.get("g0", 0.5))
+        return lambda xk: float(st(xk)[0])
+    return lambda xk: float(nl_one(cls, np.array([xk]), theta)[0])
 
 
 def scale_of(x: np.ndarray) -> float:

@@ -33,6 +33,12 @@ FIGURES: tuple[tuple[str, str], ...] = (
 FORMATS: tuple[str, ...] = ("png", "pdf")
 
 
+def sim_fit(d: Any, which: str) -> float:
+    """The ``which`` (``nominal``, ``extended``) model's simulation fit on the validation part
+    (the figure's curves are the simulations, whatever the criterion)."""
+    return float(d.fits.get(which, {}).get("simulation", np.nan))
+
+
 def _render(fig: Any) -> dict[str, bytes]:
     """``fig`` rendered in every format of :data:`FORMATS` (PDF fonts embedded as TrueType),
     then closed."""
@@ -74,7 +80,7 @@ def render_figures(d: Any) -> dict[str, dict[str, bytes]]:
         nom.yhat,
         color="C0",
         lw=0.9,
-        label=f"nominal ({nom.model.cls}), validation fit {d.baseline_fit:.1f} %",
+        label=f"nominal ({nom.model.cls}), validation fit {sim_fit(d, 'nominal'):.1f} %",
     )
     if d.cause not in ("none", "unexplained"):
         ax.plot(
@@ -82,15 +88,13 @@ def render_figures(d: Any) -> dict[str, dict[str, bytes]]:
             d.extended.simulate(ctx.x),
             color="C3",
             lw=0.9,
-            label=f"extended ({d.cause}), validation fit {d.extended_fit:.1f} %",
+            label=f"extended ({d.cause}), validation fit {sim_fit(d, 'extended'):.1f} %",
         )
     if d.criterion != "simulation":
         from hbench.diagnose import validate
 
-        crit = validate.parse_criterion(d.criterion)
-        pred = validate.predict(
-            ctx.y, nom.yhat, validate.noise_filter(nom.model, nom.model), crit.horizon
-        )
+        crit = d.info.get("criterion") or validate.parse_criterion(d.criterion)
+        pred = validate.criterion_output(ctx, nom.model, nom.model, crit, nom.yhat)
         v = ctx.val_idx
         ax.plot(
             t[v],
