@@ -9,13 +9,13 @@ import dataclasses
 import numpy as np
 import pytest
 
-from hbench import scenarios
-from hbench.controllers import PI, P
 from hbench.diagnose import benchmark_cases as bc
 from hbench.diagnose import core, loop
 from hbench.diagnose import validate as va
 from hbench.errors import InputError
-from hbench.simulate import simulate
+from hbench.model.controllers import PI, P
+from hbench.sim import scenarios
+from hbench.sim.simulate import simulate
 
 
 @pytest.mark.parametrize(
@@ -85,7 +85,7 @@ def test_a_record_without_r_falls_back_to_the_simulation() -> None:
 def test_the_cli_chooses_on_the_closed_loop_fit(run_cli, tmp_path) -> None:
     import json
 
-    from hbench.readers import write_record
+    from hbench.io.readers import write_record
 
     spec = copy.deepcopy(scenarios.PAPER_SECTION6)
     spec["noise"]["sigma2"] = 1e-3

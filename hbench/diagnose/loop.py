@@ -1,8 +1,8 @@
 """Closed-loop re-simulation: the validation criterion ``closed-loop`` of a record that carries r.
 
 The controller is identified from the record itself. It sees ``e(n) = r(n) - y(p n)`` (the
-fast sample at the start of slow period ``n``, :mod:`hbench.controllers`) and puts out ``x(n)``;
-two structures are fitted by least squares over the whole record:
+fast sample at the start of slow period ``n``, :mod:`hbench.model.controllers`) and puts out
+``x(n)``; two structures are fitted by least squares over the whole record:
 
 * ``P``: ``x(n) = b0 e(n) + c`` (a proportional controller with a bias);
 * ``PI``: ``x(n) - x(n-1) = b0 e(n) + b1 e(n-1)`` (the velocity form of ``b0 + b1 q^-1`` over
