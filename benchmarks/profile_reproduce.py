@@ -20,19 +20,19 @@ import tempfile
 
 #: (label, file suffix, function name) of each phase; "  " marks a part of the line above.
 PHASES = (
-    ("the levels (simulation, 8 methods, Figures 4-5)", "hbench/reproduce.py", "run_levels"),
-    ("  of which the simulation", "hbench/simulate.py", "simulate"),
-    ("  of which the eight methods", "hbench/identifiers.py", "identify"),
-    ("  of which Figures 4 and 5", "hbench/reproduce.py", "draw_example"),
-    ("  of which matplotlib's import", "hbench/reproduce.py", "warm_up"),
-    ("Tables 1-2", "hbench/reproduce.py", "run_tables12"),
-    ("the comparison with Tables 4-5", "hbench/reproduce.py", "compare_tables45"),
-    ("the aggregated tables", "hbench/results.py", "aggregated_tables"),
-    ("the report", "hbench/report.py", "build_report"),
-    ("  of which its figures (PNG and PDF)", "hbench/figures.py", "render_many"),
+    ("the levels (simulation, 8 methods, Figures 4-5)", "hbench/paper/levels.py", "run_levels"),
+    ("  of which the simulation", "hbench/sim/simulate.py", "simulate"),
+    ("  of which the eight methods", "hbench/ident/identifiers.py", "identify"),
+    ("  of which Figures 4 and 5", "hbench/paper/reproduce.py", "draw_example"),
+    ("  of which matplotlib's import", "hbench/paper/reproduce.py", "warm_up"),
+    ("Tables 1-2", "hbench/paper/levels.py", "run_tables12"),
+    ("the comparison with Tables 4-5", "hbench/paper/compare.py", "compare_tables45"),
+    ("the aggregated tables", "hbench/tables/results.py", "aggregated_tables"),
+    ("the report", "hbench/report/build.py", "build_report"),
+    ("  of which its figures (PNG and PDF)", "hbench/report/figures.py", "render_many"),
     ("  of which PDF font subsetting", "backends/_backend_pdf_ps.py", "get_glyphs_subset"),
-    ("  of which the headline tables", "hbench/report.py", "write_summary"),
-    ("  of which the cell statistics", "hbench/report.py", "cell_stats"),
+    ("  of which the headline tables", "hbench/report/build.py", "write_summary"),
+    ("  of which the cell statistics", "hbench/report/build.py", "cell_stats"),
     ("rows.parquet", "pandas/core/frame.py", "to_parquet"),
 )
 
@@ -45,7 +45,7 @@ def cumulative(stats: pstats.Stats, suffix: str, name: str) -> float:
     stats : pstats.Stats
         The profile.
     suffix : str
-        The end of the defining file's path (e.g. ``"hbench/report.py"``).
+        The end of the defining file's path (e.g. ``"hbench/report/build.py"``).
     name : str
         The function's name.
 
@@ -73,7 +73,7 @@ def main() -> None:
         profile.runcall(cli, ["reproduce", "--runs", str(args.runs), "--jobs", "1", "--out", out])
     stats = pstats.Stats(profile)
     total = cumulative(stats, "hbench/cli.py", "main")
-    figures_4_5 = cumulative(stats, "hbench/reproduce.py", "draw_example")
+    figures_4_5 = cumulative(stats, "hbench/paper/reproduce.py", "draw_example")
     imports = sum(row[3] for key, row in stats.stats.items() if key[2] == "_find_and_load")  # type: ignore[attr-defined]
     print(f"hbench reproduce --runs {args.runs} --jobs 1 under cProfile: {total:.2f} s")
     for label, suffix, name in PHASES:
