@@ -19,7 +19,7 @@ import pandas as pd
 import pytest
 from pytest_benchmark.fixture import BenchmarkFixture
 
-from hbench import parallel
+from hbench.bench import parallel
 from hbench.bench.runner import methods_from_names, run_cell
 from hbench.sim.simulate import Scenario
 

@@ -93,7 +93,7 @@ def _render(spec: FigureSpec) -> bytes:
 
 def render_many(specs: Sequence[FigureSpec], processes: int = 1) -> list[bytes]:
     """Render and save every spec; PNG bytes in spec order. ``processes > 1``: in worker
-    processes of :func:`hbench.parallel.pool`."""
+    processes of :func:`hbench.bench.parallel.pool`."""
     if processes <= 1 or len(specs) <= 1:
         return [_render(s) for s in specs]
     from hbench.bench import parallel

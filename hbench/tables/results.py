@@ -416,7 +416,7 @@ def aggregated_tables(rows: pd.DataFrame) -> dict[str, pd.DataFrame]:
     Parameters
     ----------
     rows : DataFrame
-        Tidy rows (:data:`hbench.schema.TIDY_COLUMNS`).
+        Tidy rows (:data:`hbench.bench.schema.TIDY_COLUMNS`).
 
     Returns
     -------
@@ -424,7 +424,7 @@ def aggregated_tables(rows: pd.DataFrame) -> dict[str, pd.DataFrame]:
         ``{"fitness": ..., "bias": ..., "structure": ...}``: :func:`aggregate` and
         :func:`structure` with the column :data:`LEVEL`, each through :func:`display_table`.
         Computed once, they are what :func:`write_tables` writes and what
-        :func:`hbench.report.build_report` shows (its ``tables``).
+        :func:`hbench.report.build.build_report` shows (its ``tables``).
     """
     fitness, bias = aggregate(rows, level=True)
     return {
