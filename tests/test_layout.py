@@ -202,12 +202,14 @@ def test_no_import_cycle_among_hbench_modules():
 
 
 def _sources() -> list[Path]:
-    """hbench's modules (the faces themselves apart), the plugins and the benchmarks."""
+    """hbench's modules (the faces themselves apart), the plugins, the example plugin and the
+    benchmarks."""
     faces = {MODULES[old] for old in MOVED if old not in PACKAGES}
     plugins = sorted((REPO / "plugins").rglob("*.py"))
     return (
         [p for p in MODULES.values() if p not in faces]
         + plugins
+        + sorted((REPO / "examples").rglob("*.py"))
         + sorted((REPO / "benchmarks").glob("*.py"))
     )
 
@@ -228,6 +230,40 @@ def test_hbench_plugins_and_benchmarks_import_the_new_paths_only():
         if bad:
             found[str(path.relative_to(REPO))] = sorted(bad)
     assert found == {}
+
+
+def unresolved(path: Path) -> set[str]:
+    """The names ``from hbench... import NAME`` in ``path`` reads that are neither a module of
+    hbench nor a name of the module it reads them from (read without a warning)."""
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+        if not (isinstance(node, ast.ImportFrom) and (node.module or "").startswith("hbench")):
+            continue
+        if node.level or node.module.split(".")[0] != "hbench":
+            continue
+        for alias in node.names:
+            if f"{node.module}.{alias.name}" in MODULES:
+                continue
+            with warnings.catch_warnings():
+                warnings.simplefilter("error", DeprecationWarning)
+                try:
+                    getattr(importlib.import_module(node.module), alias.name)
+                except (ImportError, AttributeError, DeprecationWarning):
+                    out.add(f"{node.module}.{alias.name}")
+    return out
+
+
+def test_unresolved_finds_a_name_that_does_not_exist(tmp_path):
+    source = tmp_path / "m.py"
+    source.write_text("from hbench import parallel, hookimpl\nfrom hbench.bench import runner\n")
+    assert unresolved(source) == {"hbench.parallel"}
+
+
+def test_every_hbench_name_imported_exists():
+    """hbench's modules, the plugins, the example plugin and the benchmarks import only names
+    that exist (a module of hbench, or a name its module holds)."""
+    found = {str(p.relative_to(REPO)): sorted(unresolved(p)) for p in _sources()}
+    assert {k: v for k, v in found.items() if v} == {}
 
 
 def _lint_imports(*args: str) -> subprocess.CompletedProcess:
