@@ -10,6 +10,8 @@ The workflow, one submodule per step:
   ``register_effects`` hook.
 * :mod:`~hbench.diagnose.validate` - fit on the first part of the record, validate on the rest,
   name the cause; the JSON of the contract.
+* :mod:`~hbench.diagnose.loop` - the ``closed-loop`` validation criterion of a record with r:
+  the controller identified from ``(r - y, x)``, the loop re-simulated from r.
 * :mod:`~hbench.diagnose.report` - the HTML and Markdown pages.
 * :mod:`~hbench.diagnose.generator` - synthetic records with one hidden effect (tests).
 
