@@ -4,7 +4,8 @@ The modules live in subpackages by what they do (``hbench.model``, ``hbench.sim`
 top-level module name imports too: the names plugins use (``hbench.identifiers``,
 ``hbench.polyphase``, ``hbench.conformance``, ``hbench.records``) are public faces without a
 warning; every other top-level name is deprecated, and reading a name from it warns with the
-package path. hbench's own modules, the plugins and the benchmarks import the package paths only.
+package path. hbench's own modules, the plugins, the example plugin and the benchmarks import the
+package paths only, and only names that exist.
 The import graph among hbench's modules, imports inside functions included, has no cycle; the
 layers are checked by import-linter (``lint-imports``, contracts in ``pyproject.toml``).
 """
