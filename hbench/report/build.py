@@ -36,6 +36,7 @@ import math
 import os
 from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -778,10 +779,14 @@ def build_report(
     the figures in worker processes (:mod:`hbench.bench.parallel`); ``extra_figures``
     (:data:`hbench.report.figures.FigureSpec`) are rendered in the same batch (the
     reproduction's Figures 4 and 5).
+
+    The steps, in order: the output folder (:func:`_report_dir`), the statistics and the
+    headline (:func:`_report_stats`), the tables written beside the page
+    (:func:`_report_tables`), the figures rendered in one batch (:func:`_report_figures`), the
+    page assembled (:func:`_report_page`).
     """
     from hbench.report import beyond as report_beyond
     from hbench.report import figures
-    from hbench.tables.results import aggregated_tables, new_output_dir
 
     if spread not in figures.SPREADS:  # before any work
         raise InputError(f"--spread must be one of {', '.join(figures.SPREADS)}, got {spread!r}")
@@ -790,13 +795,61 @@ def build_report(
         rows, files = load_rows(run_dir)
     else:
         files = [run_dir / "rows.parquet"]
+    out = _report_dir(run_dir, out)
+    stats, head, head_bias = _report_stats(out, run_dir, rows)
+    shown = _report_tables(out, rows, stats, tables)
+    beyond = report_beyond.plan(rows, out, _series_label)
+    for name, table in (beyond.tables if beyond else {}).items():
+        write_table(out, name, table)
+    figs, beyond_pngs = _report_figures(
+        out, run_dir, stats, shown, spread, beyond, extra_figures, jobs
+    )
+    page = [
+        "<!DOCTYPE html>",
+        '<html lang="en"><head><meta charset="utf-8">',
+        '<meta name="viewport" content="width=device-width, initial-scale=1">',
+        "<title>hbench report</title>",
+        f"<style>{CSS}</style></head><body>",
+        "<h1>hbench report</h1>",
+        *_intro_html(run_dir, files, rows, shown),
+        _headline_html(head, head_bias),
+        _reproduction_html(run_dir, out),
+        '<section id="figures"><h2>Figures</h2>',
+        *figs,
+        "</section>",
+        '<section id="tables"><h2>Tables</h2>',
+        "<p>Also written as Markdown and LaTeX (booktabs) files beside this page: "
+        + _esc(", ".join(f"{n}.md, {n}.tex" for n in ("summary", "summary_bias", *shown.tables)))
+        + ".</p>",
+        *_tables_html(shown),
+        "</section>",
+        beyond.html(beyond_pngs) if beyond else "",
+        '<section id="provenance"><h2>Provenance</h2>',
+        _provenance_html(load_provenance(run_dir), run_dir),
+        "</section>",
+        "</body></html>",
+    ]
+    path = out / "report.html"
+    atomic.write_text(path, "\n".join(page))
+    return path
+
+
+def _report_dir(run_dir: Path, out: Path | str | None) -> Path:
+    """The report's folder: ``out``, or ``run_dir/report`` (a new one if that exists)."""
+    from hbench.tables.results import new_output_dir
+
     if out is None:
         out = run_dir / "report"
         if out.exists():
             out = new_output_dir(run_dir, "report")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    return out
 
+
+def _report_stats(out: Path, run_dir: Path, rows: Any) -> tuple[dict[str, Any], Any, Any]:
+    """Per-cell statistics with the headline's intervals and the paper's values beside them;
+    the headline tables (written by :func:`write_summary`)."""
     stats = cell_stats(rows)
     head, head_bias = write_summary(out, run_dir, rows)
     # the interval's half-width and the paper's values for the figures
@@ -810,6 +863,27 @@ def build_report(
         {"paper_bias": head_bias["paper_bias"]},
         by=["parameter"],
     )
+    return stats, head, head_bias
+
+
+@dataclass
+class _Shown:
+    """The report's tables as shown (method labels in place of names) and the run status."""
+
+    tables: dict[str, Any]
+    failures: Any
+    counts: dict[str, int]
+    status_line: str
+    none_ok: bool
+    empty: dict[str, str]
+
+
+def _report_tables(
+    out: Path, rows: Any, stats: dict[str, Any], tables: Mapping[str, Any] | None
+) -> _Shown:
+    """Write the report's tables (Markdown and LaTeX) beside the page; return them as shown."""
+    from hbench.tables.results import aggregated_tables
+
     # as the renderings show them: SNR cells told apart (column snr_target), sorted by level
     if tables is None:
         tables = aggregated_tables(rows)
@@ -825,7 +899,7 @@ def build_report(
     counts = status_counts(rows, runs=runs)
     status_line = ", ".join(f"{k} {v}" for k, v in counts.items())
     none_ok = counts.get("ok", 0) == 0
-    tables = {
+    shown = {
         "fitness": fitness_table,
         "bias": bias_table,
         "structure": structure_table,
@@ -833,16 +907,32 @@ def build_report(
         "timing": timing,
     }
     if len(failures):
-        tables["failures"] = failures
+        shown["failures"] = failures
     empty = _empty_reasons(none_ok, status_line)
-    for name, table in tables.items():
+    for name, table in shown.items():
         note = _failures_note(none_ok, status_line) if name == "failures" else ""
         write_table(
             out, name, table, note=note, empty=empty.get(name, ""), wrap_last=name == "failures"
         )
-    beyond = report_beyond.plan(rows, out, _series_label)
-    for name, table in (beyond.tables if beyond else {}).items():
-        write_table(out, name, table)
+    return _Shown(shown, failures, counts, status_line, none_ok, empty)
+
+
+def _report_figures(
+    out: Path,
+    run_dir: Path,
+    stats: dict[str, Any],
+    shown: _Shown,
+    spread: str,
+    beyond: Any,
+    extra_figures: Sequence[Any],
+    jobs: int,
+) -> tuple[list[str], list[bytes]]:
+    """Render every figure in one batch: the page's figures as HTML in page order (a note
+    where a figure has no data), and the PNGs of the beyond-the-paper section."""
+    from hbench.report import figures
+
+    none_ok = shown.none_ok
+    ranking = shown.tables["ranking"]
 
     def missing(fig_id: str, what: str, reason: str) -> str:
         why = "No run produced an estimate" if none_ok else reason
@@ -926,7 +1016,12 @@ def build_report(
         html_figure(planned[s][0], pngs[s], planned[s][2]) if isinstance(s, int) else s
         for s in slots
     ]
+    return figs, pngs[len(planned) :]
 
+
+def _intro_html(run_dir: Path, files: Sequence[Path], rows: Any, shown: _Shown) -> list[str]:
+    """The page's opening: the source, the run status, and notes a reader needs first."""
+    counts, status_line = shown.counts, shown.status_line
     methods = [str(m) for m in rows["method"].unique()]  # in order of appearance
     recon = [m for m in methods if method_info(m)["reconstruction"]]
     n_cells = rows.drop_duplicates(["nonlinearity", "p", "delay", "sigma2", "snr_target"]).shape[0]
@@ -936,7 +1031,7 @@ def build_report(
         f"{_esc(', '.join(method_label(m) for m in methods))}).</p>",
         "<p>Run status: " + _esc(status_line) + ".</p>",
     ]
-    if none_ok:
+    if shown.none_ok:
         intro.append(
             '<p class="note" id="no-estimates"><b>No run produced an estimate</b>: none of the '
             f"{sum(counts.values())} runs ({_esc(status_line)}) of "
@@ -951,13 +1046,18 @@ def build_report(
             "own (see its docstring); read its numbers as those of a faithful variant."
             "</p>"
         )
-    if len(failures):
+    if len(shown.failures):
         intro += [
             '<section id="failures"><h2>Runs without an estimate</h2>',
-            f"<p>{_esc(_failures_note(none_ok, status_line))}</p>",
-            html_table(failures, table_id="table-failures"),
+            f"<p>{_esc(_failures_note(shown.none_ok, status_line))}</p>",
+            html_table(shown.failures, table_id="table-failures"),
             "</section>",
         ]
+    return intro
+
+
+def _tables_html(shown: _Shown) -> list[str]:
+    """The tables section: each table under its title, the long ones folded."""
     table_titles = {
         "ranking": "Ranking (mean rank of fitness per cell)",
         "timing": "Time per method",
@@ -969,43 +1069,15 @@ def build_report(
     table_html = []
     for name, title in table_titles.items():
         table_html.append(f"<h3>{_esc(title)}</h3>")
-        if tables[name].empty:
-            table_html.append(f'<p class="note" id="no-table-{name}">{_esc(empty[name])}</p>')
+        if shown.tables[name].empty:
+            table_html.append(f'<p class="note" id="no-table-{name}">{_esc(shown.empty[name])}</p>')
             continue
         fmt = ".3g" if name in ("ranking", "timing", "structure") else ".4g"
-        block = html_table(tables[name], floatfmt=fmt, table_id=f"table-{name}")
+        block = html_table(shown.tables[name], floatfmt=fmt, table_id=f"table-{name}")
         if name in folded:
-            block = _fold(f"{len(tables[name])} rows", block)
+            block = _fold(f"{len(shown.tables[name])} rows", block)
         table_html.append(block)
-    prov = load_provenance(run_dir)
-    page = [
-        "<!DOCTYPE html>",
-        '<html lang="en"><head><meta charset="utf-8">',
-        '<meta name="viewport" content="width=device-width, initial-scale=1">',
-        "<title>hbench report</title>",
-        f"<style>{CSS}</style></head><body>",
-        "<h1>hbench report</h1>",
-        *intro,
-        _headline_html(head, head_bias),
-        _reproduction_html(run_dir, out),
-        '<section id="figures"><h2>Figures</h2>',
-        *figs,
-        "</section>",
-        '<section id="tables"><h2>Tables</h2>',
-        "<p>Also written as Markdown and LaTeX (booktabs) files beside this page: "
-        + _esc(", ".join(f"{n}.md, {n}.tex" for n in ("summary", "summary_bias", *tables)))
-        + ".</p>",
-        *table_html,
-        "</section>",
-        beyond.html(pngs[len(planned) :]) if beyond else "",
-        '<section id="provenance"><h2>Provenance</h2>',
-        _provenance_html(prov, run_dir),
-        "</section>",
-        "</body></html>",
-    ]
-    path = out / "report.html"
-    atomic.write_text(path, "\n".join(page))
-    return path
+    return table_html
 
 
 def _cmd(args: argparse.Namespace) -> int:
