@@ -4,11 +4,12 @@
 fit part (default ``wang-lsm``, orders ``na <= 2`` (:data:`NA_NOMINAL`), the delay's multiple of
 ``p`` as given, assumption A3). Every actuator class is fitted to the graph ``(x(n), U(n))``
 (:func:`hbench.diagnose.classes.fit_graph`), then from there by equation error through the
-dynamics (:func:`equation_error_classes`: the likelihood of the nominal noise model), and the
-class is chosen by BIC with the rules of :func:`choose_graph` (:func:`blind_model`). The simulated
-output is ``y_hat = k G(q) f(x) + m`` with ``k, m`` and the start-up transient by least squares on
-the fit part. The noise model is the paper's: equation error ``e / A(q)``, so the model's
-innovations are ``A(q) (y - y_hat)``.
+dynamics (:func:`equation_error_classes`: the likelihood of the nominal noise model, in a
+structure richer than the blind model's so that an effect's misfit is not taken for a valve),
+and the class is chosen by BIC with the rules of :func:`choose_graph` (:func:`blind_model`).
+The simulated output is ``y_hat = k G(q) f(x) + m`` with ``k, m`` and the start-up transient by
+least squares on the fit part. The noise model is the paper's: equation error ``e / A(q)``, so
+the model's innovations are ``A(q) (y - y_hat)``.
 
 ``p = 1`` (a plant log: no fast sampling, so no blind route): an output-error model from ``x`` to
 ``y`` with orders ``na = nb`` in 1..3 and delay 0..8 by BIC on the fit part; every class fitted
@@ -26,7 +27,7 @@ What was measured on the way to these choices, and the alternatives that were no
 class decided on the fit part alone; the literature's OP-PV pattern tests; a differenced route
 for integrating loops; where the misses on synthetic plant loops come from), is written up in
 ``docs/experiments/`` (``literature-stiction-tests.md``, ``integrating-route.md``,
-``valve-position-ceiling.md``, ``diagnose-benchmark-loops.md``).
+``valve-position-ceiling.md``, ``diagnose-benchmark-loops.md``, ``diagnose-class-ceiling.md``).
 """
 
 from __future__ import annotations
