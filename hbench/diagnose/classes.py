@@ -546,10 +546,12 @@ def selection_structure(
     return EqStructure(na, nb, d, extra, np.asarray(idx))
 
 
-def eq_residual(u: np.ndarray, y: np.ndarray, st: EqStructure, theta: np.ndarray) -> np.ndarray:
-    """The equation error ``w(t)`` of a fit ``theta`` (ordered as
-    :func:`hbench.diagnose.core.batch_arx` returns it) on ``st.idx`` (rows before the
-    regressors exist dropped), with the rows: ``(rows, w)`` stacked as ``(2, n)``."""
+def eq_residual(
+    u: np.ndarray, y: np.ndarray, st: EqStructure, theta: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(rows, w)``: the equation error ``w(t) = y(t) - phi(t)' theta`` of a fit ``theta``
+    (ordered as :func:`hbench.diagnose.core.batch_arx` returns it) on the rows of ``st.idx``
+    where every regressor exists."""
     u = np.asarray(u, float)
     y = np.asarray(y, float)
     rows = st.idx[st.idx >= max(st.na, st.delay + st.nb)]
@@ -561,7 +563,7 @@ def eq_residual(u: np.ndarray, y: np.ndarray, st: EqStructure, theta: np.ndarray
     if st.extra is not None:
         cols.append(st.extra)
     Phi = np.hstack(cols)[rows]
-    return np.stack([rows.astype(float), y[rows] - Phi @ theta])
+    return rows, y[rows] - Phi @ theta
 
 
 def trim_outliers(rows: np.ndarray, w: np.ndarray, na: int) -> np.ndarray | None:

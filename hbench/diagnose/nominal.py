@@ -401,7 +401,7 @@ def equation_error_classes(
             whole,
             found[best][2],
         )
-        trimmed = classes.trim_outliers(rows.astype(int), w, st.na)
+        trimmed = classes.trim_outliers(rows, w, st.na)
         if trimmed is None or (kept is not None and np.array_equal(trimmed, kept)):
             break
         kept = trimmed
