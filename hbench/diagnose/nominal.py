@@ -433,6 +433,36 @@ def equation_error_classes(
     return out
 
 
+def model_structure_fit(
+    cls: str,
+    model: core.Model,
+    ctx: Context,
+    graph: dict[str, classes.ClassFit],
+    nested: bool = True,
+) -> tuple[dict[str, float], np.ndarray]:
+    """The chosen class's parameters and ``[a, b, m]`` by equation error in the blind model's
+    orders and delay (the nominal's own structure; the richer structure of
+    :func:`equation_error_classes` only chooses the class), started at the graph fit's
+    parameters and, for stiction with ``nested``, also at the backlash it nests (``J = 0``)."""
+    idx = ctx.fit_idx
+    na, nb, delay = model.lin.na, max(model.lin.nb, 2), model.lin.delay
+    xs = shifted(ctx.x, model.shift)
+    args = (xs, ctx.y, ctx.p, idx, na, nb, delay)
+
+    def start(c: str) -> dict[str, float] | None:
+        g = graph.get(c)
+        return (g.theta or None) if g is not None else None
+
+    theta, rss, th = classes.fit_equation_error(cls, *args, theta0=start(cls))
+    if cls == "stiction" and nested and start("backlash"):
+        b, _, _ = classes.fit_equation_error("backlash", *args, theta0=start("backlash"))
+        seed = {"S": b["width"], "J": 0.0, "d0": 1.0, "g0": b["g0"]}
+        t1, r1, _ = classes.fit_equation_error(cls, *args, theta0=seed)
+        if r1 < rss:
+            theta, rss, th = classes.fit_equation_error(cls, *args, theta0=t1)
+    return theta, th
+
+
 def blind_model(
     ctx: Context,
     est: Estimate,
@@ -458,9 +488,8 @@ def blind_model(
         which = tuple(dict.fromkeys(("linear", *candidates, top)))
     fits = equation_error_classes(model, ctx, graph, which=which)
     chosen = choose_graph(fits, MIN_STRENGTH_EQ)
-    f = fits[chosen]
+    theta, th = model_structure_fit(chosen, model, ctx, graph, nested="backlash" in fits)
     na, nb = model.lin.na, max(model.lin.nb, 2)
-    th = f.info["eq"]
     lin = core.Linear(
         a=core.stabilise(np.concatenate([[1.0], th[:na]])),
         b=np.asarray(th[na : na + nb]),
@@ -468,7 +497,7 @@ def blind_model(
     )
     model = model.with_(
         cls=chosen,
-        theta=f.theta,
+        theta=theta,
         lin=lin,
         gain=1.0,
         offset=0.0,
