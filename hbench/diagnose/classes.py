@@ -413,25 +413,29 @@ def fit_equation_error(
     nb: int,
     delay: int,
     theta0: dict[str, float] | None = None,
+    extra: np.ndarray | None = None,
+    coarse: bool = False,
 ) -> tuple[dict[str, float], float, np.ndarray]:
     """The class's parameters and an ARX linear part by equation error on ``idx``.
 
     ``y(t) + a1 y(t-1) + .. = b1 f(x)(t - delay - 1) + .. + m + e(t)``: the nominal noise
-    model's own criterion (the paper's eq. 2). A coarse grid (or the fine grid around
-    ``theta0``), then a finer grid around the best. Returns ``(theta, rss, [a, b, m])``.
+    model's own criterion (the paper's eq. 2); ``extra`` (shared regressors, e.g. a trend) as in
+    :func:`hbench.diagnose.core.batch_arx`. A coarse grid (or the fine grid around ``theta0``),
+    then a finer grid around the best; ``coarse``: the coarse grid as well when ``theta0`` is
+    given (the better start wins). Returns ``(theta, rss, [a, b, m, ...])``.
     """
 
     def best_of(params: dict[str, np.ndarray]) -> tuple[dict[str, float], float, np.ndarray]:
         F = nl_batch(cls, x, params)
         if p > 1:
             F = np.repeat(F, p, axis=1)
-        rss, th = core.batch_arx(F, y, na, nb, delay, idx)
+        rss, th = core.batch_arx(F, y, na, nb, delay, idx, extra)
         c = int(np.argmin(rss))
         return _take(params, c), float(rss[c]), th[c]
 
     if cls == "linear":
         F = (np.repeat(x, p) if p > 1 else np.asarray(x, float))[None, :]
-        rss, th = core.batch_arx(F, y, na, nb, delay, idx)
+        rss, th = core.batch_arx(F, y, na, nb, delay, idx, extra)
         return {}, float(rss[0]), th[0]
     start = fine_grid(cls, x, theta0) if theta0 is not None else coarse_grid(cls, x)
     theta, rss, th = best_of(start)
@@ -439,8 +443,145 @@ def fit_equation_error(
         t0, r0, h0 = best_of({k: np.array([v]) for k, v in theta0.items()})
         if r0 < rss:
             theta, rss, th = t0, r0, h0
+        if coarse:
+            t1, r1, h1 = best_of(coarse_grid(cls, x))
+            if r1 < rss:
+                theta, rss, th = t1, r1, h1
     for spread in (1.0, 1.0, 0.2, 0.04):  # then two narrower passes: grid steps of ~0.5 %
         t2, r2, h2 = best_of(fine_grid(cls, x, theta, spread))
         if r2 < rss:
             theta, rss, th = t2, r2, h2
     return theta, rss, th
+
+
+# --------------------------------------------------------------------------- class selection
+
+
+#: Denominator orders, numerator lengths and trend order of the equation-error structure the
+#: class is chosen in (:func:`selection_structure`); the delay is searched from ``p`` fast
+#: samples below the blind model's to ``DELAY_SPAN_SLOW`` slow samples above it.
+NA_SELECT: tuple[int, ...] = (1, 2, 3, 4, 5, 6)
+NB_SELECT: tuple[int, ...] = (2, 4)
+TREND_ORDER = 2
+DELAY_SPAN_SLOW = 3
+#: Rows whose equation error exceeds this many robust standard deviations (1.4826 MAD) of the
+#: best class's residual are outliers (:func:`trim_outliers`) ...
+OUTLIER_Z = 5.0
+#: ... when they are at most this share of the rows (more is a misfit, not outliers; a spike
+#: enters ``na + 1`` rows, and a first fit that the spikes bias flags a few more).
+OUTLIER_SHARE = 0.1
+
+
+def trend_columns(N: int, order: int) -> np.ndarray | None:
+    """Legendre polynomials of degree ``1 .. order`` on ``t`` mapped to ``[-1, 1]``: ``(N,
+    order)``, or None for ``order = 0``."""
+    if order <= 0:
+        return None
+    t = np.linspace(-1.0, 1.0, N)
+    return np.stack(
+        [np.polynomial.legendre.Legendre.basis(k)(t) for k in range(1, order + 1)], axis=1
+    )
+
+
+@dataclass
+class EqStructure:
+    """The equation-error structure the class is chosen in: ``A(q) y(t) = B(q) f(x)(t - delay
+    - 1) + m + T(t) c + w(t)`` with ``T`` the trend columns, on the rows ``idx``."""
+
+    na: int
+    nb: int
+    delay: int
+    extra: np.ndarray | None
+    idx: np.ndarray
+
+    @property
+    def n(self) -> int:
+        return int(np.sum(self.idx >= max(self.na, self.delay + self.nb)))
+
+    @property
+    def k_linear(self) -> int:
+        """Parameters of the linear part (``a, b, m`` and the trend)."""
+        k = 0 if self.extra is None else self.extra.shape[1]
+        return self.na + self.nb + 1 + k
+
+
+def selection_structure(
+    inputs: np.ndarray,
+    y: np.ndarray,
+    p: int,
+    idx: np.ndarray,
+    delay0: int,
+    trend: int = TREND_ORDER,
+) -> EqStructure:
+    """The structure ``(na, nb, delay)`` of :class:`EqStructure` by BIC.
+
+    A valve class is told from ``linear`` by the likelihood ratio of two fits in one linear
+    structure. If that structure is too poor (an order or a delay short of the plant's, a drift,
+    noise with dynamics of its own) the nonlinearity's parameters absorb the misfit and a small
+    valve drowns in it. A high-order ARX approximates any stable plant with ARMAX or Box-Jenkins
+    noise (the high-order ARX approximation), a trend absorbs a drift (``A(q)`` maps a
+    polynomial trend to one of the same degree), and the delay window holds a longer delay. So
+    ``na`` in :data:`NA_SELECT`, ``nb`` in :data:`NB_SELECT` and the delay in
+    ``[delay0 - p, delay0 + DELAY_SPAN_SLOW p]`` are chosen by the smallest
+    ``n log(RSS / n) + k log n`` over the candidate inputs ``inputs`` (``(C, N)`` fast-rate
+    valve outputs: ``x`` and the graph fits of the classes, so the structure is not chosen to
+    suit one class).
+    """
+    inputs = np.atleast_2d(np.asarray(inputs, float))
+    y = np.asarray(y, float)
+    extra = trend_columns(y.size, trend)
+    best: tuple[float, tuple[int, int, int]] | None = None
+    delays = range(max(delay0 - p, 0), delay0 + DELAY_SPAN_SLOW * p + 1)
+    for na in NA_SELECT:
+        for nb in NB_SELECT:
+            for d in delays:
+                st = EqStructure(na, nb, d, extra, idx)
+                rss, _ = core.batch_arx(inputs, y, na, nb, d, idx, extra)
+                n = st.n
+                bic = n * np.log(max(float(rss.min()), 1e-300) / n) + st.k_linear * np.log(n)
+                if best is None or bic < best[0]:
+                    best = (float(bic), (na, nb, d))
+    assert best is not None
+    na, nb, d = best[1]
+    return EqStructure(na, nb, d, extra, np.asarray(idx))
+
+
+def eq_residual(
+    u: np.ndarray, y: np.ndarray, st: EqStructure, theta: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(rows, w)``: the equation error ``w(t) = y(t) - phi(t)' theta`` of a fit ``theta``
+    (ordered as :func:`hbench.diagnose.core.batch_arx` returns it) on the rows of ``st.idx``
+    where every regressor exists."""
+    u = np.asarray(u, float)
+    y = np.asarray(y, float)
+    rows = st.idx[st.idx >= max(st.na, st.delay + st.nb)]
+    cols = [
+        -core._lagged(y, range(1, st.na + 1)),
+        core._lagged(u, range(st.delay + 1, st.delay + 1 + st.nb)),
+        np.ones((y.size, 1)),
+    ]
+    if st.extra is not None:
+        cols.append(st.extra)
+    Phi = np.hstack(cols)[rows]
+    return rows, y[rows] - Phi @ theta
+
+
+def trim_outliers(rows: np.ndarray, w: np.ndarray, na: int) -> np.ndarray | None:
+    """The rows without outliers, or None when there are none (or too many to be outliers).
+
+    A spike in ``y(t)`` enters the equation error of rows ``t .. t + na`` (as the target, then
+    as a regressor): a row whose error exceeds :data:`OUTLIER_Z` robust standard deviations is
+    dropped with the ``na`` rows after it, if such rows are at most :data:`OUTLIER_SHARE` of all.
+    """
+    w = np.asarray(w, float)
+    s = 1.4826 * float(np.median(np.abs(w - np.median(w))))
+    bad = np.abs(w - np.median(w)) > OUTLIER_Z * max(s, 1e-300)
+    if not bad.any() or bad.mean() > OUTLIER_SHARE:
+        return None
+    rows = np.asarray(rows, int)
+    drop: set[int] = set()
+    for t in rows[bad]:  # rows flagged inside a spike's span are the spike's, not new spikes
+        if int(t) not in drop:
+            drop.update(range(int(t), int(t) + na + 1))
+    keep = np.array([r not in drop for r in rows])
+    return rows[keep]

@@ -636,13 +636,16 @@ def batch_arx(
     nb: int,
     delay: int,
     idx: np.ndarray,
+    extra: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Equation-error least squares over a batch of inputs.
 
     For every candidate input ``u[c]`` (shape ``(C, N)``):
     ``y(t) = -a1 y(t-1) .. - a_na y(t-na) + b1 u(t-delay-1) + .. + m`` on the samples ``idx``
     (the maximum-likelihood criterion under the paper's equation-error noise ``e / A``).
-    Returns ``rss`` ``(C,)`` and ``theta`` ``(C, na + nb + 1)`` ordered ``a, b, m``.
+    ``extra`` (shape ``(N, k)``): more regressors shared by every candidate (e.g. a trend),
+    their coefficients after ``m``. Returns ``rss`` ``(C,)`` and ``theta``
+    ``(C, na + nb + 1 + k)`` ordered ``a, b, m`` (then ``extra``'s).
     """
     u = np.atleast_2d(np.asarray(u, float))
     C, N = u.shape
@@ -650,7 +653,10 @@ def batch_arx(
     idx = np.asarray(idx)
     idx = idx[idx >= max(na, delay + nb)]
     yi = y[idx]
-    Sh = np.hstack([-_lagged(y, range(1, na + 1)), np.ones((N, 1))])[idx]  # (n, na + 1)
+    shared = [-_lagged(y, range(1, na + 1)), np.ones((N, 1))]
+    if extra is not None:
+        shared.append(np.asarray(extra, float).reshape(N, -1))
+    Sh = np.hstack(shared)[idx]  # (n, na + 1 + k)
     Z = []
     for lag in range(delay + 1, delay + 1 + nb):
         src = idx - lag
