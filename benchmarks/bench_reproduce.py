@@ -10,16 +10,14 @@ the interpreter and imports rather than work.
 for 1000 runs of the paper's example, from the channels' moments (as the method computes it)
 against the equations' rows written out (``tests/test_sls.py``'s reference), same run.
 
-Before/after in one run: set ``HBENCH_BENCH_BASELINE`` to the source tree of another
-revision (``git archive REV | tar -x -C DIR`` and its compiled ``hbench/numerics/_kernels*.so``
-copied
-in); ``test_reproduce[baseline-*]`` then runs that tree with this environment's interpreter in the
-same run as ``test_reproduce[this-*]``, and the later of each pair records
-``ratio_to_baseline`` (wall, this / baseline) and ``cpu_ratio_to_baseline`` (CPU seconds of
-all the run's processes, user + system: the figure that moves least with the machine's load).
-Each case records the load average (``load_average``: the higher of before and after). Without
-the variable the baseline cases are skipped.
-"""
+Before/after in one run: set ``HBENCH_BENCH_BASELINE`` to the source tree of another revision
+(``git archive REV | tar -x -C DIR`` and its compiled ``hbench/numerics/_kernels*.so`` copied in);
+``test_reproduce[baseline-*]`` then runs that tree with this environment's interpreter in the same
+run as ``test_reproduce[this-*]``, and the later of each pair records ``ratio_to_baseline`` (wall,
+this / baseline) and ``cpu_ratio_to_baseline`` (CPU seconds of all the run's processes, user +
+system: the figure that moves least with the machine's load). Each case records the load average
+(``load_average``: the higher of before and after). Without the variable the baseline cases are
+skipped."""
 
 from __future__ import annotations
 

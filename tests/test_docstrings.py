@@ -2,9 +2,7 @@
 
 Every public function of :mod:`hbench.ident.identifiers`, :mod:`hbench.ident.polyphase`,
 :mod:`hbench.bench.conformance` and :mod:`hbench.sim.records` has a one-line summary and, when it
-takes
-parameters, a ``Parameters`` section naming each of them.
-"""
+takes parameters, a ``Parameters`` section naming each of them."""
 
 from __future__ import annotations
 

@@ -175,8 +175,8 @@ def check_inner_signal_aligned_with_x(make: Callable[[], Identifier]) -> None:
 
 
 class _Spy:
-    """Stands in for a method and records what :func:`hbench.ident.identifiers.identify` shows
-    it."""
+    """Stands in for a method and records what :func:`hbench.ident.identifiers.identify`
+    shows it."""
 
     def __init__(self, method: Identifier) -> None:
         self.method = method

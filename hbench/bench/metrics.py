@@ -52,8 +52,7 @@ def fitnesses(
 
     The scalings ``"gain"`` and ``"ls"`` are computed by a compiled kernel where one is built
     (:func:`hbench.numerics.kernels.fitness`: the same operations and sums); ``compiled=False``
-    keeps to
-    numpy."""
+    keeps to numpy."""
     for scaling in scalings:
         if scaling not in SCALINGS:
             raise InputError(

@@ -1,11 +1,10 @@
 """The identifier interface and the structure selection every blind method shares.
 
 An identifier receives a :class:`~hbench.sim.records.Record` (``y`` always; ``x`` and ``r`` only if
-it
-declares it needs them) and :class:`IdentifyOptions` (what the user knows a priori: p from the
-record, the bound ``n0_b``, the ``na`` range, the fractional-delay range and the known multiple of
-p in the delay, assumption A3). It returns an :class:`Estimate`. It never sees the truth; the
-oracle is the one declared exception (``needs = {"truth"}``).
+it declares it needs them) and :class:`IdentifyOptions` (what the user knows a priori: p from the
+record, the bound ``n0_b``, the ``na`` range, the fractional-delay range and the known multiple of p
+in the delay, assumption A3). It returns an :class:`Estimate`. It never sees the truth; the oracle
+is the one declared exception (``needs = {"truth"}``).
 
 The structure selection (Section 6, steps (i)-(iii)) is shared: :func:`select_structure`.
 """

@@ -321,12 +321,11 @@ _CHOLESKY_COND = 1e9
 
 def _pinv_sym(Rm: np.ndarray) -> np.ndarray:
     """``Rm^+`` of symmetric positive semi-definite matrices ``(..., n, n)``: the inverse through
-    the Cholesky factor (:func:`hbench.numerics.ordered.cholesky_inverse`) where ``tr(Rm)
-    tr(Rm^-1)`` (a
-    bound on the condition number) is below :data:`_CHOLESKY_COND`, and ``np.linalg.pinv``
-    (``eigh``, eigenvalues below ``_RCOND`` times the largest cut) for the others, e.g. an order
-    above the true one on noise-free data. Both are the pseudo-inverse to rounding; the first is
-    ~10x faster on the regressions' 1x1 .. 5x5 matrices. C-ordered."""
+    the Cholesky factor (:func:`hbench.numerics.ordered.cholesky_inverse`) where
+    ``tr(Rm) tr(Rm^-1)`` (a bound on the condition number) is below :data:`_CHOLESKY_COND`, and
+    ``np.linalg.pinv`` (``eigh``, eigenvalues below ``_RCOND`` times the largest cut) for the
+    others, e.g. an order above the true one on noise-free data. Both are the pseudo-inverse to
+    rounding; the first is ~10x faster on the regressions' 1x1 .. 5x5 matrices. C-ordered."""
     X, ok = cholesky_inverse(Rm, _CHOLESKY_COND)
     if not ok.all():
         bad = ~ok
@@ -858,12 +857,9 @@ def inner_signal_ls(sys: SimoSystem, h0: np.ndarray, h1: np.ndarray) -> np.ndarr
 
     Every sum over the ``p`` channels runs term after term from the first
     (:func:`hbench.numerics.ordered.ordered_products`), and the solve is LAPACK's ``dptsv`` (the
-    reference
-    ``dpttrf``/``dpttrs`` arithmetic) or, for a run it cannot take, the Thomas loop: the compiled
-    kernel (:func:`hbench.numerics.kernels.inner_signal_ls`) does the same operations, so both
-    paths give
-    the same numbers on any machine.
-    """
+    reference ``dpttrf``/``dpttrs`` arithmetic) or, for a run it cannot take, the Thomas loop: the
+    compiled kernel (:func:`hbench.numerics.kernels.inner_signal_ls`) does the same operations, so
+    both paths give the same numbers on any machine."""
     R = h0.shape[0]
     M = sys.valid.shape[0]
     if kernels.active_library() is None or not lapack_is_reference():

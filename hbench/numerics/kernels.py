@@ -1,10 +1,9 @@
 """Compiled kernels for the loops numpy cannot vectorise well, and the switch to the numpy path.
 
 ``hbench/numerics/_kernels.c`` is built by ``pip install`` as an optional extension (``setup.py``);
-this
-module loads it through :mod:`ctypes`. Each kernel performs the floating-point operations of the
-numpy path it stands for, in the same order and without fused multiply-adds, so **both paths give
-the same numbers** (equal as floats; only the sign of an exact zero, or of a nan, may differ;
+this module loads it through :mod:`ctypes`. Each kernel performs the floating-point operations of
+the numpy path it stands for, in the same order and without fused multiply-adds, so **both paths
+give the same numbers** (equal as floats; only the sign of an exact zero, or of a nan, may differ;
 checked by ``tests/test_kernels.py`` for every built-in actuator, controllers of 0-3 states and
 plants of order 1-3): the compiled one is only faster. A run's numbers never depend on the runs
 batched with it.
@@ -177,8 +176,7 @@ def filtered_output(y: np.ndarray, a: np.ndarray) -> np.ndarray | None:
 
 def filtered_output_and_delta(y: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     """``(w, delta(w))`` (:func:`hbench.ident.polyphase.delta`) in one compiled pass per run;
-    ``None``
-    when the numpy path must run."""
+    ``None`` when the numpy path must run."""
     return _filtered_output(y, a, True)
 
 
@@ -325,14 +323,12 @@ def inner_signal_ls(
     start: int | None = None,
 ) -> np.ndarray | None:
     """``U~`` of eq. (27) (:func:`hbench.ident.polyphase.inner_signal_ls`) from the SIMO blocks
-    ``W``
-    ``(runs, M, p)`` (or, with ``start``, from the rows of ``w`` ``(runs, N)`` read in place:
-    ``W[:, k, i] = w[:, start + k p + i]``), their validity ``(M, p)`` and the channel
-    coefficients ``(runs, p)``, compiled; ``None`` when the numpy path must run (also where
-    this machine's LAPACK ``dptsv`` does not compute as the reference ``dpttrf``/``dpttrs`` the
-    kernel mirrors, the caller keeps to numpy: see
-    :func:`hbench.ident.polyphase.lapack_is_reference`). Entries that are not ``valid`` are taken
-    as 0, never read."""
+    ``W`` ``(runs, M, p)`` (or, with ``start``, from the rows of ``w`` ``(runs, N)`` read in place:
+    ``W[:, k, i] = w[:, start + k p + i]``), their validity ``(M, p)`` and the channel coefficients
+    ``(runs, p)``, compiled; ``None`` when the numpy path must run (also where this machine's LAPACK
+    ``dptsv`` does not compute as the reference ``dpttrf``/``dpttrs`` the kernel mirrors, the caller
+    keeps to numpy: see :func:`hbench.ident.polyphase.lapack_is_reference`). Entries that are not
+    ``valid`` are taken as 0, never read."""
     if active_library() is None:
         return None
     return inner_signal_ls_built(W, valid, h0, h1, start)

@@ -2,15 +2,12 @@
 small symmetric inverses of the quiet-phase regressions (:func:`cholesky_inverse`).
 
 ``np.einsum`` and BLAS sum a product's terms in an order of their own (SIMD lanes, fused
-multiply-adds on some machines) that can change with the build, the CPU and the batch size.
-The closed loop (:func:`hbench.sim.simulate._run_loop`,
-:meth:`hbench.model.controllers.Controller.step`)
-sums with :func:`ordered_products` instead, term after term from the first, one multiply and one
-add at a time; the compiled kernel of :mod:`hbench.numerics.kernels` does exactly the same, so the
-two
-give the same numbers on any machine, and a run's numbers never depend on the runs batched with
-it.
-"""
+multiply-adds on some machines) that can change with the build, the CPU and the batch size. The
+closed loop (:func:`hbench.sim.simulate._run_loop`,
+:meth:`hbench.model.controllers.Controller.step`) sums with :func:`ordered_products` instead, term
+after term from the first, one multiply and one add at a time; the compiled kernel of
+:mod:`hbench.numerics.kernels` does exactly the same, so the two give the same numbers on any
+machine, and a run's numbers never depend on the runs batched with it."""
 
 from __future__ import annotations
 

@@ -2,11 +2,10 @@
 
 What runs (the defaults, and why):
 
-* The scenario is :data:`hbench.sim.scenarios.PAPER_SECTION6` (``--set KEY=VALUE`` overrides a key)
-  at
-  the noise levels of Tables 4 and 5, sigma^2 = 0, 1e-4, 5e-4, 1e-3, 5e-3, 1e-2, ``--runs`` Monte
-  Carlo runs each (100 by default, as in the paper; the noise-free level needs at most 10: every
-  estimate is exact there).
+* The scenario is :data:`hbench.sim.scenarios.PAPER_SECTION6` (``--set KEY=VALUE`` overrides a
+  key) at the noise levels of Tables 4 and 5, sigma^2 = 0, 1e-4, 5e-4, 1e-3, 5e-3, 1e-2,
+  ``--runs`` Monte Carlo runs each (100 by default, as in the paper; the noise-free level needs at
+  most 10: every estimate is exact there).
 * Tables 1 and 2 come from one realisation at sigma^2 = 1e-3: run 0 of that level's Monte Carlo
   batch (the same realisation as Figures 4 and 5). ``V`` is the bias-compensated LSM's table of
   eq. (19) (``wang-lsm``) and the IVM's own table (``wang-iv`` with ``structure="iv"``);

@@ -11,22 +11,19 @@ self-contained ``report.html`` (figures embedded as base64 PNG data URIs, no ext
 the figures as PNG (200 dpi) and PDF (TrueType fonts), and the tables. The page opens with the
 headline (:func:`write_summary`: ``summary.{csv,md,tex}`` and ``summary_bias.{csv,md,tex}``,
 :mod:`hbench.tables.summary` and :mod:`hbench.tables.headline`): who wins each cell, with what
-confidence.
-The other tables, as Markdown and LaTeX (booktabs), the method's label in the ``method``
-column: ``fitness``, ``bias`` (the contract's aggregation), ``structure`` (hit rates of na, nb,
-tau, delay), ``ranking`` (mean rank of fitness per cell among the blind methods; oracles are
-bounds, not ranked), ``timing`` (seconds per run), and, when some run is not ``ok``,
-``failures`` (:func:`failure_table`: per method and cell, how many runs failed or were not
-identifiable, and why). On the page every table scrolls in its own box, columns with no value
-are left out (said under the table), the long tables and the provenance are folded
-(``<details>``), and the provenance is one block: what every job shares, and a table of what
-differs. A table or figure with no data is replaced by a one-line note (the
-Markdown and LaTeX files of an empty table say why it is empty); when no run produced an estimate
-the page says so first. Methods whose class is a reconstruction (``reconstruction = True``) are
-labelled so wherever they appear. When a method of the ``hbench_extensions`` plugin package ran,
-a section "Beyond the paper" follows the tables (:mod:`hbench.report.beyond`; its tables
-``beyond_*`` are written beside the others).
-"""
+confidence. The other tables, as Markdown and LaTeX (booktabs), the method's label in the ``method``
+column: ``fitness``, ``bias`` (the contract's aggregation), ``structure`` (hit rates of na, nb, tau,
+delay), ``ranking`` (mean rank of fitness per cell among the blind methods; oracles are bounds, not
+ranked), ``timing`` (seconds per run), and, when some run is not ``ok``, ``failures``
+(:func:`failure_table`: per method and cell, how many runs failed or were not identifiable, and
+why). On the page every table scrolls in its own box, columns with no value are left out (said under
+the table), the long tables and the provenance are folded (``<details>``), and the provenance is one
+block: what every job shares, and a table of what differs. A table or figure with no data is
+replaced by a one-line note (the Markdown and LaTeX files of an empty table say why it is empty);
+when no run produced an estimate the page says so first. Methods whose class is a reconstruction
+(``reconstruction = True``) are labelled so wherever they appear. When a method of the
+``hbench_extensions`` plugin package ran, a section "Beyond the paper" follows the tables
+(:mod:`hbench.report.beyond`; its tables ``beyond_*`` are written beside the others)."""
 
 from __future__ import annotations
 
@@ -659,8 +656,7 @@ def _reproduction_html(run_dir: Path, out: Path) -> str:
 def write_summary(out: Path, run_dir: Path, rows: Any) -> tuple[Any, Any]:
     """Write the headline ``summary.{csv,md,tex}`` and ``summary_bias.{csv,md,tex}`` into
     ``out`` (:mod:`hbench.tables.summary`, rendered by :mod:`hbench.tables.headline`); the paper's
-    values come
-    from ``RUN_DIR/reproduce.csv`` where present. Returns the two tables."""
+    values come from ``RUN_DIR/reproduce.csv`` where present. Returns the two tables."""
     import pandas as pd
 
     from hbench.tables import headline, summary

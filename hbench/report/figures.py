@@ -1,19 +1,15 @@
 """Figures of the reproduction and the comparison report (matplotlib, Agg backend).
 
 One style for every figure (the style file :data:`hbench.report.style.STYLE_FILE`: journal sizes,
-fonts
-of 8 pt at print size, TrueType fonts in PDF, 200 dpi PNG) and one colour, marker and line style
-per method in every figure (:func:`hbench.report.style.method_style`); figures are one column
+fonts of 8 pt at print size, TrueType fonts in PDF, 200 dpi PNG) and one colour, marker and line
+style per method in every figure (:func:`hbench.report.style.method_style`); figures are one column
 (:data:`~hbench.report.style.COLUMN_WIDTH`) or the page (:data:`~hbench.report.style.PAGE_WIDTH`)
-wide. Every
-plotting function returns a matplotlib ``Figure``; :func:`save` writes it as PNG and PDF and
-returns the PNG bytes (for HTML data URIs).
-:func:`render_many` renders a list of figures, in forked worker processes when asked (the
-reproduction's time budget). The signals of the paper's example are dimensionless (valve input
-x and output u in normalised units); the axes say so. matplotlib is imported inside the functions
-(start-up time of the CLI). Layouts are constrained (legends above the panels); no mathtext
-(its parser costs more than the drawing).
-"""
+wide. Every plotting function returns a matplotlib ``Figure``; :func:`save` writes it as PNG and PDF
+and returns the PNG bytes (for HTML data URIs). :func:`render_many` renders a list of figures, in
+forked worker processes when asked (the reproduction's time budget). The signals of the paper's
+example are dimensionless (valve input x and output u in normalised units); the axes say so.
+matplotlib is imported inside the functions (start-up time of the CLI). Layouts are constrained
+(legends above the panels); no mathtext (its parser costs more than the drawing)."""
 
 from __future__ import annotations
 
@@ -51,8 +47,7 @@ def warm_up() -> None:
 
 def styled(func: Callable[..., Any]) -> Callable[..., Any]:
     """Draw under :data:`hbench.report.style.STYLE_FILE` (a context: the caller's rcParams are left
-    as
-    they were)."""
+    as they were)."""
 
     @functools.wraps(func)
     def wrapper(*args: Any, **kwargs: Any) -> Any:

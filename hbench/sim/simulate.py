@@ -212,11 +212,9 @@ def _run_loop(
     """The closed loop over slow time. Returns ``(y0, x, U)``.
 
     Runs compiled (:func:`hbench.sim.loop_kernel.closed_loop`, the same numbers) for the built-in
-    actuators and controllers; the numpy loop below is the reference and serves the others.
-    Its products sum in a fixed order (:func:`hbench.numerics.ordered.ordered_products`): the same
-    on
-    any machine and for any batch, and what the kernel mirrors.
-    """
+    actuators and controllers; the numpy loop below is the reference and serves the others. Its
+    products sum in a fixed order (:func:`hbench.numerics.ordered.ordered_products`): the same on
+    any machine and for any batch, and what the kernel mirrors."""
     compiled = loop_kernel.closed_loop(lp, controller, nonlinearity, r, v[:, ::p], p)
     if compiled is not None:
         return compiled

@@ -15,9 +15,8 @@ callback :class:`hbench.sweep.callbacks.AggregateTables` then writes ``fitness.c
 (+ ``.md``, ``.tex``) and all rows into the sweep folder (a single run: into its own folder).
 
 A cell's seed is :func:`hbench.sim.seeding.cell_seed` of the base seed and the resolved scenario
-part
-of the config (plant, nonlinearity, controller, noise, reference, scenario), so every method of a
-cell sees the same data and a cell's numbers do not depend on the other cells.
+part of the config (plant, nonlinearity, controller, noise, reference, scenario), so every method of
+a cell sees the same data and a cell's numbers do not depend on the other cells.
 
 Before Hydra starts, the overrides are composed once per swept value (:func:`validate`), so a typo
 (unknown key, bad type, unknown plugin, parameter or method) exits with status 2 and one line

@@ -17,14 +17,12 @@ paper's example (1000 runs, 4 methods, one process, 2-core machine):
 
 :func:`batch_settings` limits BLAS to one thread for the duration of a cell
 (:func:`hbench.bench.runner.run_cell`) and restores the count afterwards. The allocator setting
-cannot
-be undone (glibc cannot restore its dynamic thresholds), so no library function makes it: the
+cannot be undone (glibc cannot restore its dynamic thresholds), so no library function makes it: the
 ``hbench`` command applies it to its own process (:func:`hbench.cli.main`) and to the launcher
-workers its sweeps start, and every worker process of :func:`hbench.bench.parallel.pool`
-applies it to itself; a program that calls :func:`hbench.bench.runner.run_cell` itself opts in with
-:func:`tune_allocator`. It is skipped on other
-C libraries, and ``HBENCH_TUNE_MALLOC=0`` turns it off.
-"""
+workers its sweeps start, and every worker process of :func:`hbench.bench.parallel.pool` applies it
+to itself; a program that calls :func:`hbench.bench.runner.run_cell` itself opts in with
+:func:`tune_allocator`. It is skipped on other C libraries, and ``HBENCH_TUNE_MALLOC=0`` turns it
+off."""
 
 from __future__ import annotations
 

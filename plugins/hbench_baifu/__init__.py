@@ -1,16 +1,15 @@
 """Bai & Fu (2002), "A blind approach to Hammerstein model identification", IEEE Trans. Signal
 Processing 50(7): the noise-free design, as this suite implements it.
 
-From the source (as summarised in Wang et al. 2007 and ``shared/docs/methods-and-models.md``):
-A from the quiet-phase equations by ordinary least squares (no noise compensation, their setting
-is noise-free); B from the active phases; the inner signal by the direct inverse
-``A(q)/B(q) y`` down-sampled by p (Table 5's F_INV), or a Bezout-identity inverse when B is not
-minimum phase. Reconstructed here: B as the least-squares ratio of ``Delta w(kp + l)`` to
-``Delta w(kp + 1)``; the Bezout inverse as the minimum-norm degree-0 combiner of the polyphase
-channels (exact because every channel of eq. 25 has order one); the structure selection of
+From the source (as summarised in Wang et al. 2007 and ``shared/docs/methods-and-models.md``): A
+from the quiet-phase equations by ordinary least squares (no noise compensation, their setting is
+noise-free); B from the active phases; the inner signal by the direct inverse ``A(q)/B(q) y``
+down-sampled by p (Table 5's F_INV), or a Bezout-identity inverse when B is not minimum phase.
+Reconstructed here: B as the least-squares ratio of ``Delta w(kp + l)`` to ``Delta w(kp + 1)``; the
+Bezout inverse as the minimum-norm degree-0 combiner of the polyphase channels (exact because every
+channel of eq. 25 has order one); the structure selection of
 :func:`hbench.ident.identifiers.select_structure` with the OLS denominator (Bai & Fu assume the
-orders).
-"""
+orders)."""
 
 from __future__ import annotations
 

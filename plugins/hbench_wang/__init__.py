@@ -129,8 +129,7 @@ class WangLSM(_Wang):
       column) and at over-fitted orders; the fit at the paper's structure has a real root.
     * ``inverse``: ``None`` (default) for eq. (27); one of
       :data:`hbench.ident.identifiers.INVERSES` for the direct inverse ``A(q)/B(q) y`` down-sampled
-      by
-      p instead (Bezout combiner where B is not minimum phase, with ``auto``): the LSM estimates
+      by p instead (Bezout combiner where B is not minimum phase, with ``auto``): the LSM estimates
       in the direct inverse, Table 5's F_INV (:func:`hbench.ident.identifiers.inverse_inner`).
 
     Consistent for ARX noise ``e / A(q)``; biased for coloured equation noise (Table 4's LSM rows).

@@ -19,10 +19,8 @@ with the OLS denominator. Under noise the OLS of step 1 is biased (the regressor
 method is a baseline for what the paper's compensation buys, not a competitor.
 
 :func:`hbench.ident.identifiers.blind_fit` packages this same route (plus sharing the selection
-between
-methods run on one record) for methods that only replace a step; it is spelled out here so that
-each field of the :class:`~hbench.ident.identifiers.Estimate` can be seen being filled.
-"""
+between methods run on one record) for methods that only replace a step; it is spelled out here so
+that each field of the :class:`~hbench.ident.identifiers.Estimate` can be seen being filled."""
 
 from __future__ import annotations
 

@@ -1,9 +1,7 @@
 """The example plugin's own tests: run with the package installed (``pip install -e .``).
 
 ``hbench.bench.conformance`` holds the checks every hbench method must pass; a plugin runs them on
-its
-method by name, which also checks that the entry point registers it.
-"""
+its method by name, which also checks that the entry point registers it."""
 
 import numpy as np
 from hbench_example_plugin import PlainLS
