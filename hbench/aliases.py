@@ -1,7 +1,8 @@
 """Deprecated top-level module names (``hbench.simulate``, ...) that forward to the packages.
 
 A deprecated name forwards each attribute read from it to the module's new path with a
-:class:`DeprecationWarning` naming that path; nothing is imported and no process-wide state
+:class:`DeprecationWarning` naming that path and the release that removes the
+name (:data:`REMOVED_IN`); nothing is imported and no process-wide state
 (import hooks, ``sys.modules``) is touched until a name is read.
 """
 
@@ -9,6 +10,9 @@ import importlib
 import warnings
 from collections.abc import Callable, Iterable
 from typing import Any
+
+#: The release that drops the deprecated names (stated in every warning).
+REMOVED_IN = "0.3"
 
 
 def forward(old: str, new: str, submodules: Iterable[str] = ()) -> Callable[[str], Any]:
@@ -35,7 +39,8 @@ def forward(old: str, new: str, submodules: Iterable[str] = ()) -> Callable[[str
         if name in own or (name.startswith("__") and name.endswith("__")):
             raise AttributeError(f"module {old!r} has no attribute {name!r}")
         warnings.warn(
-            f"{old} is deprecated: import {name} from {new}",
+            f"{old} is deprecated and will be removed in hbench {REMOVED_IN}: "
+            f"import {name} from {new}",
             DeprecationWarning,
             stacklevel=2,
         )

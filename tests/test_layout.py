@@ -24,6 +24,7 @@ from pathlib import Path
 import pytest
 
 import hbench
+from hbench.aliases import REMOVED_IN
 
 CORE = Path(hbench.__file__).parent
 REPO = CORE.parent
@@ -88,8 +89,9 @@ def test_a_deprecated_name_warns_with_the_new_path(old):
     new = MOVED[old]
     face = importlib.import_module(old)
     name = _public_name(new)
-    with pytest.warns(DeprecationWarning, match=re.escape(f"import {name} from {new}")):
+    with pytest.warns(DeprecationWarning, match=re.escape(f"import {name} from {new}")) as seen:
         value = getattr(face, name)
+    assert f"removed in hbench {REMOVED_IN}" in str(seen[0].message)
     assert value is getattr(importlib.import_module(new), name)
 
 
