@@ -245,3 +245,28 @@ def test_published_row_table_and_text():
     json.dumps(table.to_dict("records"))  # plain values
     with pytest.raises(InputError):
         pr.published_row(3, 1, models=("nope",))
+
+
+def test_report_shows_the_cells_beyond_and_the_published_row(tmp_path):
+    from hbench.report import build
+
+    pd.DataFrame(
+        {
+            "table": [5, 5],
+            "row": [1e-2, 5e-3],
+            "column": ["F", "F"],
+            "method": ["wang-lsm", "wang-lsm-inv"],
+            "z": [-5.6, -4.0],
+            "within_by": ["", "rbs-band-0.25 (-1.1)"],
+            "z:rbs-band-0.25": [-4.2, -1.1],
+        }
+    ).to_csv(tmp_path / "investigation_cells.csv", index=False)
+    assert build._cells_beyond_html(tmp_path / "nowhere") == []
+    html = "".join(build._cells_beyond_html(tmp_path))
+    assert "1 of 2 cells beyond |z| = 2" in html and "rbs-band-0.25 (-1.1)" in html
+    assert "z:rbs-band-0.25" not in html.split("</p>", 1)[1]  # the wide columns stay in the CSV
+    pr.published_row(2, pl.DEFAULT_SEED, levels=(1e-2,)).to_csv(
+        tmp_path / "published_row.csv", index=False
+    )
+    html = "".join(build._cells_beyond_html(tmp_path))
+    assert 'id="published-row"' in html and "paper-lsm" in html
