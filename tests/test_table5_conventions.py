@@ -270,3 +270,21 @@ def test_report_shows_the_cells_beyond_and_the_published_row(tmp_path):
     )
     html = "".join(build._cells_beyond_html(tmp_path))
     assert 'id="published-row"' in html and "paper-lsm" in html
+
+
+def test_published_row_beside_our_own_mean_estimate():
+    """``ours``: our Table 4 LSM means as one more fixed model, with our F cells beside."""
+    means = pi._our_means(pc.compare_tables45(_rows()))
+    assert means[1e-2]["a1"] == pytest.approx(-1.97525)
+    assert means[1e-2]["F_LSM"] == pytest.approx(25.0)
+    assert means[1e-2]["F_INV"] == pytest.approx(0.0)
+    ours = {1e-2: {"a1": -1.9781, "a2": 0.9799, "b2": -0.7232, "F_LSM": 12.0, "F_INV": 7.0}}
+    table = pr.published_row(2, pl.DEFAULT_SEED, levels=(1e-2,), ours=ours).set_index("model")
+    assert list(table.index) == [*pr.MODELS, pr.OURS]
+    # the same parameters as the paper's LSM row: the same fitness, run by run
+    for column in ("F_LSM", "F_INV"):
+        assert table.loc[pr.OURS, column] == table.loc["paper-lsm", column]
+    assert table.loc[pr.OURS, "own_F_LSM"] == 12.0 and table.loc[pr.OURS, "own_F_INV"] == 7.0
+    assert table.loc["paper-lsm", "own_F_LSM"] == 49.0576
+    assert math.isnan(table.loc["true", "own_F_LSM"])
+    assert "(our F cells 12.0, 7.0)" in pr.published_row_text(table.reset_index())
