@@ -202,6 +202,9 @@ def test_published_parameters_are_the_printed_rows():
         "b2": -0.7232,
     }
     assert pr.published_parameters(5e-3, "paper-ivm")["b2"] == -0.7353
+    assert pr.published_units(5e-3, "paper-ivm") == pytest.approx(
+        {"a1": 1e-4, "a2": 1e-4, "b2": 1e-4}
+    )
     assert pr.published_parameters(1e-2, "paper-true") == {
         "a1": -1.962,
         "a2": 0.9623,
@@ -240,8 +243,16 @@ def test_published_row_table_and_text():
     assert list(table["model"]) == list(pr.MODELS)
     assert {"F_LSM", "F_INV", "paper_F_LSM", "paper_F_INV", "z_F_LSM", "z_F_INV"} <= set(table)
     assert (table["paper_F_LSM"] == 49.0576).all() and (table["paper_F_INV"] == 36.0619).all()
+    # the printed digits' box holds the printed point: its F lies within the corners' range
+    paper = table[table["model"] != "true"]
+    for column in ("F_LSM", "F_INV"):
+        lo, hi = paper[f"{column}_rounding_min"], paper[f"{column}_rounding_max"]
+        assert (lo <= paper[column] + 1e-9).all() and (paper[column] <= hi + 1e-9).all()
+        assert (hi > lo).all()
+    assert table.loc[table["model"] == "true", "F_LSM_rounding_min"].isna().all()
     text = pr.published_row_text(table)
     assert "sigma^2 = 0.01: paper-lsm F_LSM" in text and "paper: F_LSM 49.06" in text
+    assert "printed digits' range" in text
     json.dumps(table.to_dict("records"))  # plain values
     with pytest.raises(InputError):
         pr.published_row(3, 1, models=("nope",))
@@ -288,3 +299,18 @@ def test_published_row_beside_our_own_mean_estimate():
     assert table.loc["paper-lsm", "own_F_LSM"] == 49.0576
     assert math.isnan(table.loc["true", "own_F_LSM"])
     assert "(our F cells 12.0, 7.0)" in pr.published_row_text(table.reset_index())
+
+
+def test_published_means_against_the_truth():
+    """z of a published mean against the plant's true value with the paper's own spread; the
+    IVM's b2 at sigma^2 = 1e-3 (-0.7171 +- 0.0188 over 100 runs) is 3.9 SE off -0.72435."""
+    t = pr.paper_against_truth().set_index(["sigma2", "method", "column"])
+    cell = t.loc[(1e-3, "wang-iv", "b2")]
+    true_b2 = cell["true"]
+    assert true_b2 == pytest.approx(-0.7244, abs=5e-5)
+    want = (-0.7171 - true_b2) / math.sqrt(0.0188**2 / 100 + 1e-8 / 12)
+    assert cell["z_truth"] == pytest.approx(want) and 3.5 < want < 4.2
+    assert len(t) == 30  # 5 noisy levels x 2 methods x 3 parameters
+    text = pr.paper_against_truth_text(t.reset_index())
+    assert "wang-iv b2 @ 0.001: -0.7171" in text and "wang-lsm" not in text
+    assert "within 50 SE" in pr.paper_against_truth_text(t.reset_index(), limit=50.0)

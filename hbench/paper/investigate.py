@@ -269,10 +269,17 @@ def investigate(
     causes = explained_cells(before, comps)
     causes.to_csv(out / "investigation_cells.csv", index=False, float_format="%.6g")
     causes = causes[[c for c in causes.columns if not c.startswith("z:")]]
-    from hbench.paper.published_row import published_row, published_row_text
+    from hbench.paper.published_row import (
+        paper_against_truth,
+        paper_against_truth_text,
+        published_row,
+        published_row_text,
+    )
 
     fixed = published_row(runs, seed, ours=_our_means(before))
     fixed.to_csv(out / "published_row.csv", index=False, float_format="%.6g")
+    truth = paper_against_truth()
+    truth.to_csv(out / "published_truth.csv", index=False, float_format="%.6g")
     show = table[list(INVESTIGATION_COLUMNS)]
     base_line = table.iloc[0]
     text = [
@@ -314,6 +321,8 @@ def investigate(
         to_markdown(causes, floatfmt=".3g") if len(causes) else "(none)",
         "",
         published_row_text(fixed),
+        "",
+        paper_against_truth_text(truth),
     ]
     (out / "investigation.md").write_text("\n".join(text) + "\n")
     return table
