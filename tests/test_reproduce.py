@@ -462,6 +462,8 @@ def test_tables_figures_and_provenance(reproduced):
     prov = json.loads((d / "provenance.json").read_text())
     assert prov["config"]["runs"] == 5
     assert prov["config"]["table5_columns"]["F_INV"] == "wang-lsm-inv"
+    assert prov["config"]["reproduction"]["fitness_runs"] == "all"
+    assert prov["config"]["reproduction"]["f_lsm"] is None  # F_LSM from the LSM rows' method
     assert prov["seeds"]["base"] == pl.DEFAULT_SEED
     assert {"git_revision", "versions", "created"} <= set(prov)
     with np.load(d / "examples.npz") as ex:

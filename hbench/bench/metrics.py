@@ -7,7 +7,14 @@ gain ambiguity of ``b1 = 1`` (``U_est = b1 U`` for a perfect estimate), so it mu
 * ``"gain"`` (default, the paper's "the gain of G(q) is assumed to be known"):
   ``Us = U_est / b1_true``;
 * ``"ls"``: the least-squares scale ``c = <U_est, U> / <U_est, U_est>``;
-* ``"ls-affine"``: least-squares scale and offset.
+* ``"ls-affine"``: least-squares scale and offset;
+* ``"gain-centred"``: the true gain as in ``"gain"``, and the offset by least squares: with
+  ``e = U_est / b1_true - U`` over the ``K`` samples both signals define,
+  ``Us = U_est / b1_true - mean(U_est / b1_true) + mean(U)``, so ``Us - U = e - mean(e)`` and
+  ``||Us - U||^2 = ||e||^2 - K mean(e)^2``: the ``"gain"`` fitness with the estimate's constant
+  offset error removed (``min_c ||U_est / b1_true + c - U||`` is reached at
+  ``c = mean(U - U_est / b1_true)``). Never below ``"gain"``, equal to it where ``mean(e) = 0``;
+  ``"ls-affine"`` with the slope fixed at the known gain instead of fitted.
 """
 
 from __future__ import annotations
@@ -19,7 +26,7 @@ import numpy as np
 from hbench.errors import InputError
 from hbench.numerics import kernels
 
-SCALINGS = ("gain", "ls", "ls-affine")
+SCALINGS = ("gain", "ls", "ls-affine", "gain-centred")
 
 
 def fitness(
@@ -31,10 +38,10 @@ def fitness(
     ----------
     U_est, U : ndarray, shape (runs, K)
         Estimated (nan where undetermined) and true slow-rate inner signals, aligned.
-    scaling : {"gain", "ls", "ls-affine"}
+    scaling : {"gain", "ls", "ls-affine", "gain-centred"}
         How the gain ambiguity is removed (see the module docstring).
     gain : float or ndarray, optional
-        The true b1 (required for ``"gain"``).
+        The true b1 (required for ``"gain"`` and ``"gain-centred"``).
     """
     return fitnesses(U_est, U, (scaling,), gain)[scaling]
 
@@ -58,8 +65,9 @@ def fitnesses(
             raise InputError(
                 f"fitness scaling must be one of {', '.join(SCALINGS)}, got {scaling!r}"
             )
-    if "gain" in scalings and gain is None:
-        raise InputError("fitness scaling 'gain' needs the true gain b1")
+    for needs_gain in ("gain", "gain-centred"):
+        if needs_gain in scalings and gain is None:
+            raise InputError(f"fitness scaling {needs_gain!r} needs the true gain b1")
     U_est = np.atleast_2d(U_est)
     U = np.atleast_2d(U)
     if compiled and set(scalings) <= {"gain", "ls"} and sums_are_numpys():
@@ -78,6 +86,11 @@ def fitnesses(
         if scaling == "gain":
             with np.errstate(invalid="ignore", divide="ignore"):  # gain 0: -inf, as compiled
                 us = e / np.broadcast_to(np.asarray(gain, float), (U.shape[0],))[:, None]
+        elif scaling == "gain-centred":
+            with np.errstate(invalid="ignore", divide="ignore"):
+                eg = e / np.broadcast_to(np.asarray(gain, float), (U.shape[0],))[:, None]
+                shift = np.sum(np.where(m, eg - u, 0.0), axis=1) / n  # mean(e) over the mask
+            us = eg - shift[:, None]
         elif scaling == "ls":
             with np.errstate(invalid="ignore", divide="ignore"):
                 c = np.sum(e * u, axis=1) / np.sum(e * e, axis=1)

@@ -20,7 +20,42 @@ from hbench.tables.published import (
     z_score,
 )
 
-FITNESS_QUANTITY = {"gain": "fitness", "ls": "fitness_ls", "ls-affine": "fitness_ls_affine"}
+FITNESS_QUANTITY = {
+    "gain": "fitness",
+    "ls": "fitness_ls",
+    "ls-affine": "fitness_ls_affine",
+    "gain-centred": "fitness_gain_centred",
+}
+
+
+def fitness_runs(values: Any, which: str = "all") -> Any:
+    """The per-run fitnesses a Table 5 cell averages (``Config.fitness_runs``).
+
+    Parameters
+    ----------
+    values : array_like
+        One cell's per-run fitnesses in % (``nan`` where a run has none; left as they are).
+    which : {"all", "clip0", "nonnegative"}
+        ``all``: every run, unchanged; ``clip0``: each run's fitness floored at 0, ``max(F, 0)``
+        (an implementation that reports a fit worse than the mean as 0 %); ``nonnegative``: the
+        runs with ``F >= 0`` only (one that drops a run whose estimate fits worse than the mean
+        as failed), so the cell's ``n`` counts the runs kept.
+
+    Returns
+    -------
+    ndarray
+        The values the cell's mean, spread and ``n`` are taken from.
+    """
+    import numpy as np
+
+    v = np.asarray(values, dtype=float)
+    if which == "all":
+        return v
+    if which == "clip0":
+        return np.where(v < 0.0, 0.0, v)
+    if which == "nonnegative":
+        return v[~(v < 0.0)]
+    raise InputError(f"fitness_runs must be one of all, clip0, nonnegative, got {which!r}")
 
 
 def _stats(values: Any) -> tuple[float, float, int]:
@@ -124,10 +159,15 @@ def compare_tables45(rows: Any, config: Config = Config()) -> Any:
             method = cell.method
             if cell.table == 5 and cell.column == "F" and method == "wang-lsm-inv":
                 method = config.f_inv
+            elif cell.table == 5 and cell.column == "F" and method == "wang-lsm":
+                method = config.f_lsm_method
             elif method == "wang-lsm":
                 method = config.lsm
             quantity = fq if cell.table == 5 else cell.column
-            mean, std, n = _stats(values.get((cell.row, method, quantity), np.empty(0)))
+            vals = values.get((cell.row, method, quantity), np.empty(0))
+            if cell.table == 5:
+                vals = fitness_runs(vals, config.fitness_runs)
+            mean, std, n = _stats(vals)
             cell = replace(cell, method=method)
         z = z_score(
             mean,

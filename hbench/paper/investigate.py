@@ -73,6 +73,9 @@ def _paper_reference() -> dict[str, Any]:
 #: Alternatives that only post-process the default rows (no new simulation).
 POST_PROCESSED = {
     "fitness-ls",
+    "fitness-clip0",
+    "fitness-nonnegative-runs",
+    "f-lsm-steps-ii-iv",
     "snr-power",
     "snr-db",
     "f-inv-bai-fu",
@@ -204,7 +207,7 @@ def evaluate(
     """Rows, comparison (Tables 1, 2, 4, 5) and examples of one configuration."""
     import pandas as pd
 
-    methods = (*methods, *(m for m in (config.lsm, config.f_inv) if m not in methods))
+    methods = tuple(dict.fromkeys((*methods, config.lsm, config.f_lsm_method, config.f_inv)))
     tasks = level_tasks(config, runs, seed, structure, methods)
     results = run_levels(tasks, jobs, progress)
     rows = pd.concat([r[0] for r in results], ignore_index=True)
@@ -265,6 +268,18 @@ def investigate(
     table.to_csv(out / "investigation.csv", index=False, float_format="%.6g")
     causes = explained_cells(before, comps)
     causes.to_csv(out / "investigation_cells.csv", index=False, float_format="%.6g")
+    causes = causes[[c for c in causes.columns if not c.startswith("z:")]]
+    from hbench.paper.published_row import (
+        paper_against_truth,
+        paper_against_truth_text,
+        published_row,
+        published_row_text,
+    )
+
+    fixed = published_row(runs, seed, ours=_our_means(before))
+    fixed.to_csv(out / "published_row.csv", index=False, float_format="%.6g")
+    truth = paper_against_truth()
+    truth.to_csv(out / "published_truth.csv", index=False, float_format="%.6g")
     show = table[list(INVESTIGATION_COLUMNS)]
     base_line = table.iloc[0]
     text = [
@@ -304,15 +319,38 @@ def investigate(
         f"of {len(causes)} have one.",
         "",
         to_markdown(causes, floatfmt=".3g") if len(causes) else "(none)",
+        "",
+        published_row_text(fixed),
+        "",
+        paper_against_truth_text(truth),
     ]
     (out / "investigation.md").write_text("\n".join(text) + "\n")
     return table
 
 
+def _our_means(comparison: Any) -> dict[float, dict[str, float]]:
+    """Per noise level of :data:`hbench.paper.published_row.PUBLISHED_LEVELS`, our Table 4 LSM
+    means (``a1, a2, b2``) and Table 5 F cells (``F_LSM``, ``F_INV``) from a comparison."""
+    from hbench.paper.published_row import PUBLISHED_LEVELS
+
+    out: dict[float, dict[str, float]] = {}
+    for s2 in PUBLISHED_LEVELS:
+        at = comparison[comparison["row"].astype(float).sub(s2).abs() <= 1e-12 * s2]
+        four = at[(at["table"] == 4) & (at["method"] == "wang-lsm")]
+        five = at[(at["table"] == 5) & (at["column"] == "F")]
+        level = {str(c): float(v) for c, v in zip(four["column"], four["ours"], strict=True)}
+        for column, method in (("F_LSM", "wang-lsm"), ("F_INV", "wang-lsm-inv")):
+            level[column] = float(five.loc[five["method"] == method, "ours"].iloc[0])
+        out[s2] = level
+    return out
+
+
 def explained_cells(before: Any, comps: Mapping[str, Any]) -> Any:
     """Per cell beyond ``|z| = 2`` under the defaults: the alternatives under which the same
     cell (its slot: the LSM's or F_INV's method may change) is within, each with its z
-    (``within_by``, ``; ``-separated, empty if none)."""
+    (``within_by``, ``; ``-separated, empty if none), and one column per alternative,
+    ``z:<label>``, the cell's z under it (``|z| <= 2``: the alternative moves the cell onto the
+    paper; empty where it does not score the cell)."""
     import numpy as np
     import pandas as pd
 
@@ -321,15 +359,18 @@ def explained_cells(before: Any, comps: Mapping[str, Any]) -> Any:
     zb = b["z"].to_numpy(dtype=float)
     beyond = b[np.isfinite(zb) & (np.abs(zb) > Z_LIMIT)]
     found: dict[tuple[Any, ...], list[str]] = {tuple(r): [] for r in beyond[key].to_numpy()}
+    per_alt: dict[str, list[float]] = {}
     for label, comp in comps.items():
         a = _slots(comp).set_index(key)["z"]
+        per_alt[f"z:{label}"] = []
         for cell in found:
             z = float(a.get(cell, math.nan))
+            per_alt[f"z:{label}"].append(z)
             if math.isfinite(z) and abs(z) <= Z_LIMIT:
                 found[cell].append(f"{label} ({z:+.1f})")
     out = beyond[["table", "row", "column", "method", "z"]].reset_index(drop=True)
     out["within_by"] = ["; ".join(found[tuple(r)]) for r in beyond[key].to_numpy()]
-    return pd.DataFrame(out)
+    return pd.DataFrame({**out, **per_alt}, columns=[*out.columns, *per_alt])
 
 
 def _best_per_group(table: Any) -> list[str]:

@@ -44,7 +44,10 @@ writes ``investigation.csv``: which alternative moves which cells toward the pap
 much (mean |z| per table before and after, and the ratio of our spreads to the published ones);
 ``investigation_cells.csv`` lists, per cell beyond ``|z| = 2`` under the defaults, the
 alternatives under which it is within (a cell near 2 is moved within by many of them by chance;
-a cell far beyond by one, and only one, names its likely cause).
+a cell far beyond by one, and only one, names its likely cause), and one column ``z:<label>`` per
+alternative with the cell's z under it. ``published_row.csv``
+(:mod:`hbench.paper.published_row`) scores the paper's own Table 4 rows, as fixed models, on the
+same realisations: what the published estimates achieve in F_LSM and F_INV on our loop.
 
 What ``--investigate`` finds under the defaults (100 runs, seed 20070601), and the command that
 produces it: ``docs/experiments/reproduce-investigation.md``.

@@ -649,8 +649,57 @@ def _reproduction_html(run_dir: Path, out: Path) -> str:
                 t[cols].sort_values("mean_abs_z_after"), floatfmt=".3g", table_id="investigation"
             )
         )
+    parts += _cells_beyond_html(run_dir)
     parts.append("</section>")
     return "\n".join(parts)
+
+
+def _cells_beyond_html(run_dir: Path) -> list[str]:
+    """The investigation's cells beyond ``|z| = 2`` (``investigation_cells.csv``: per cell, the
+    alternatives under which it is within) and the paper's own Table 4 rows scored on our loop
+    (``published_row.csv``), where the run wrote them."""
+    import pandas as pd
+
+    parts = []
+    cells = run_dir / "investigation_cells.csv"
+    if cells.is_file():
+        t = pd.read_csv(cells, keep_default_na=False, na_values=[""])
+        t["within_by"] = t["within_by"].fillna("")
+        shown = t[[c for c in t.columns if not str(c).startswith("z:")]]
+        have = int((shown["within_by"] != "").sum())
+        parts.append(
+            "<h3>Cells beyond |z| = 2 and the alternatives that bring each within</h3>"
+            f"<p>{have} of {len(shown)} cells beyond |z| = 2 under the defaults are within "
+            "under at least one alternative (its z in brackets; a cell near 2 is moved within "
+            "by many alternatives by chance). Each alternative's z per cell: "
+            "<code>investigation_cells.csv</code>, columns <code>z:&lt;alternative&gt;</code>."
+            "</p>" + html_table(shown, floatfmt=".3g", table_id="investigation-cells")
+        )
+    fixed = run_dir / "published_row.csv"
+    if fixed.is_file():
+        t = pd.read_csv(fixed)
+        parts.append(
+            "<h3>The paper's own Table 4 rows scored on our loop</h3>"
+            "<p>Each published mean estimate (a1, a2, b2; the LSM and the IVM row of the level, "
+            "the printed true values, and the simulated plant's exact ones) as a fixed model in "
+            "eq. (27) (F_LSM) and in the direct inverse (F_INV), on the same realisations. "
+            "Where the paper's own LSM row scores below the paper's F, no convention of "
+            "scoring our estimates can close that F cell.</p>"
+            + html_table(t, floatfmt=".4g", table_id="published-row")
+        )
+    truth = run_dir / "published_truth.csv"
+    if truth.is_file():
+        t = pd.read_csv(truth)
+        off = t[(t["method"] == "wang-iv") & (t["z_truth"].abs() > 2.0)]
+        parts.append(
+            "<h3>Published IVM means off the true parameters</h3>"
+            "<p>The IVM is consistent under the example's noise: its mean over 100 runs lies "
+            "within about 2 of its standard errors of the truth. These published IVM cells do "
+            "not (z of the published mean against the plant's true value, the paper's own "
+            f"spread; all cells in <code>published_truth.csv</code>): {len(off)}.</p>"
+            + (html_table(off, floatfmt=".4g", table_id="published-truth") if len(off) else "")
+        )
+    return parts
 
 
 def write_summary(out: Path, run_dir: Path, rows: Any) -> tuple[Any, Any]:
