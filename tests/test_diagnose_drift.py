@@ -105,7 +105,8 @@ def test_a_drift_of_five_percent_on_the_paper_plant_is_found_by_the_ramp_test() 
     assert det.statistic == pytest.approx(det.info["ramp"] / effects.Drift.RAMP_LEVEL)
     assert det.p_value == det.info["ramp_p"] < effects.ALPHA
     assert det.threshold == effects.Drift.threshold == 1.0
-    assert "ramp test" in det.evidence and "reported: the ramp test (passes)" in det.evidence
+    assert "passing (above the level with p < 0.01): ramp;" in det.evidence
+    assert "reported: the ramp test" in det.evidence
     # the same record without the drift: quiet
     assert not _paper_drift(103, 0.0).fired
 

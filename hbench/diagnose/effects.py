@@ -333,10 +333,12 @@ class Drift(Effect):
                 f"output's range over the record (t = {ramp_t:.3g}, p = {format_p(p_ramp)}; "
                 f"level {100 * self.RAMP_LEVEL:g} %)"
             )
-        else:
+        elif a is None:
             ramp_text = (
                 "ramp test: not run (output-error noise model: nothing whitens the residual)"
             )
+        else:
+            ramp_text = "ramp test: not run (the output is constant over the fit part)"
 
         def passes(k: str) -> bool:
             s, p = tests[k]
@@ -352,8 +354,9 @@ class Drift(Effect):
         return self._det(
             statistic,
             p,
-            f"{ramp_text}; {lf_text}; reported: the {test} test "
-            f"({'passes' if passing else 'none passes'}), its statistic over its level",
+            f"{ramp_text}; {lf_text}; passing (above the level with p < {ALPHA:g}): "
+            f"{', '.join(passing) or 'neither'}; reported: the {test} test, its statistic "
+            "over its level",
             threshold=self.threshold,
             test=test,
             ramp=ramp,
