@@ -17,11 +17,13 @@ effect (seeds 6000-6209 and 7000-7139) for the power. Each statistic is an effec
 significance level, which every small misfit of the nominal model reaches on records of a few
 thousand samples), and each threshold sits at or above the 99th percentile of its nominal
 distribution where most records with the effect exceed it; the numbers are in the report of
-``python -m hbench.diagnose.calibrate --effect none --start 5000 --n 200``. The drift and
-time-varying thresholds also rise, per record, to the 99th percentile of their statistic
-under the record's own nominal noise model (:mod:`hbench.diagnose.null`), since that noise
-can be far slower than the calibration records' (the paper's example). A detector that
-fires spuriously costs little: the cause also needs a validation gain.
+``python -m hbench.diagnose.calibrate --effect none --start 5000 --n 200``. The drift
+detector's low-frequency threshold and the time-varying threshold also rise, per record, to
+the 99th percentile of their statistic under the record's own nominal noise model
+(:mod:`hbench.diagnose.null`), since that noise can be far slower than the calibration
+records' (the paper's example); the drift detector also tests a ramp under that noise model
+(:class:`Drift`). A detector that fires spuriously costs little: the cause also needs a
+validation gain.
 
 Innovations and residuals: ``resid = y - y_hat`` (simulation error) and ``innov``, the nominal
 noise model's one-step errors (``A(q) resid`` for the blind route, whose noise model is the
@@ -252,42 +254,117 @@ def _ar(r: np.ndarray, order: int) -> np.ndarray:
 
 
 class Drift(Effect):
-    """Drift: the residual's power piles up at the lowest frequencies.
+    """Drift: a ramp in the residual, or residual power piled up at the lowest frequencies.
 
-    Statistic: the mean periodogram of the simulation residual over the 3 lowest bins against
-    bins 4-20 (``F(6, 34)`` for a stationary disturbance whose correlation time is short next to
-    the record). Threshold: the calibrated 8, or for the blind route the 99th percentile of
-    the same ratio over draws of the nominal noise model (:mod:`hbench.diagnose.null`) when
-    that is larger: a slow plant's equation noise ``e / A`` alone piles its power there.
-    Extension: a drift state, a ramp ``c t`` in the output: the ramp the
-    residual shows is taken off ``y``, the nominal route runs again (a drift also distorts the
-    blind inner signal, hence the class), and the ramp is fitted with the output scale and
-    extrapolated over the validation part.
+    Two tests on the simulation residual over the fit part (after :data:`SETTLE` samples):
+
+    * **ramp** (blind route, p >= 2): the slope of a linear trend under the nominal noise model
+      ``e / A`` (:func:`hbench.diagnose.stats.noise_model_trend`: the residual and the ramp
+      filtered by ``A(q)``, so that the noise is the white ``e``, then the t-test of the
+      slope). Its size: the fitted ramp extrapolated over the whole record, relative to the
+      range of ``y`` over the fit part. It passes when the size exceeds :attr:`RAMP_LEVEL` and
+      its p-value is below :data:`ALPHA`. A slow plant's noise ``e / A`` wanders over the
+      record (the paper's loop: poles 0.97 and 0.99 at the fast rate), but ``A(q)`` whitens it,
+      so the ramp test keeps its level there. p = 1 (output error) has no noise model that
+      whitens the residual, so the ramp test is left out (an ordinary t-test on a coloured
+      residual rejects far too often).
+    * **low frequency**: the mean periodogram over the 3 lowest bins against bins 4-20
+      (``F(6, 34)`` for a stationary disturbance whose correlation time is short next to the
+      record). It passes when the ratio exceeds its threshold, the calibrated
+      :attr:`LF_THRESHOLD` or, for the blind route, the 99th percentile of the same ratio over
+      draws of the nominal noise model (:mod:`hbench.diagnose.null`) when that is larger (a
+      slow plant's ``e / A`` alone piles its power there), and its F-test p-value is below
+      :data:`ALPHA`. The record's threshold is ``info["lf_threshold"]``.
+
+    The detector fires when either test passes. ``statistic`` is the larger of the two tests'
+    statistics each divided by its own level (ramp size / :attr:`RAMP_LEVEL`, ratio / the
+    record's low-frequency threshold), so :attr:`threshold` is 1; the statistic and ``p_value``
+    are those of one test: the one that passes (the larger normalised statistic if both do),
+    otherwise the one with the larger normalised statistic, so the verdict (statistic above 1
+    and p below :data:`ALPHA`) is the reported test's. The evidence names both tests, their
+    levels and which one is reported; ``info`` holds both (``ramp``, ``ramp_t``, ``ramp_p``,
+    ``lf_ratio``, ``lf_p``, ``lf_threshold``, ``test``).
+
+    Extension: a drift state, a ramp ``c t`` in the output: the ramp the residual shows is taken
+    off ``y``, the nominal route runs again (a drift also distorts the blind inner signal, hence
+    the class), and the ramp is fitted with the output scale and extrapolated over the
+    validation part.
     """
 
     name = "drift"
-    summary = "low-frequency residual power; extension: a ramp (drift state) in the output"
-    threshold = 8.0
+    summary = (
+        "a ramp under the nominal noise model or low-frequency residual power; "
+        "extension: a ramp (drift state) in the output"
+    )
+    #: The statistic is normalised by each test's own level: it fires above 1.
+    threshold = 1.0
+    #: The ramp test's level: the fitted ramp over the record against the output's range.
+    RAMP_LEVEL = 0.02
+    #: The low-frequency ratio's calibrated threshold (raised per record by the noise null).
+    LF_THRESHOLD = 8.0
 
     def detect(self, ctx: nm.Context, nom: nm.Nominal) -> Detection:
         e = _fit(ctx, nom, nom.resid)
-        ratio, p = stats.low_frequency_ratio(e)
-        slope = np.polyfit(np.arange(e.size) / e.size, e, 1)[0]
+        ratio, p_lf = stats.low_frequency_ratio(e)
         draws = null_draws(ctx, nom)
-        q, noise = self.threshold, ""
+        q, noise = self.LF_THRESHOLD, ""
         if draws is not None:
-            q = null.percentile(stats.low_frequency_ratios(draws[:, SETTLE:]))
+            q_null = null.percentile(stats.low_frequency_ratios(draws[:, SETTLE:]))
+            q = max(q, q_null)
             noise = (
-                f"; the nominal noise model alone gives {q:.3g} "
-                f"({null.QUANTILE:g}th percentile of {draws.shape[0]} draws)"
+                f", the larger of {self.LF_THRESHOLD:g} and the nominal noise model's "
+                f"{q_null:.3g} ({null.QUANTILE:g}th percentile of {draws.shape[0]} draws)"
             )
+        tests = {"low-frequency": (ratio / q, p_lf)}
+        lf_text = (
+            f"low-frequency test: residual power in the 3 lowest frequency bins is {ratio:.3g} x "
+            f"that of bins 4-20 (F-test p = {format_p(p_lf)}; level {q:.3g}{noise})"
+        )
+        ramp = ramp_t = np.nan
+        p_ramp = 1.0
+        a = nm.noise_denominator(nom.model)
+        y_fit = ctx.y[ctx.fit_idx]
+        y_range = float(np.ptp(y_fit[np.isfinite(y_fit)])) if np.isfinite(y_fit).any() else 0.0
+        if a is not None and y_range > 0:
+            ramp, ramp_t, p_ramp = stats.noise_model_trend(e, a, scale=y_range, span=ctx.N)
+            tests["ramp"] = (ramp / self.RAMP_LEVEL, p_ramp)
+            ramp_text = (
+                f"ramp test under the noise model e/A: a ramp of {100 * ramp:.3g} % of the "
+                f"output's range over the record (t = {ramp_t:.3g}, p = {format_p(p_ramp)}; "
+                f"level {100 * self.RAMP_LEVEL:g} %)"
+            )
+        elif a is None:
+            ramp_text = (
+                "ramp test: not run (output-error noise model: nothing whitens the residual)"
+            )
+        else:
+            ramp_text = "ramp test: not run (the output is constant over the fit part)"
+
+        def passes(k: str) -> bool:
+            s, p = tests[k]
+            return bool(np.isfinite(s) and s > self.threshold and p < ALPHA)
+
+        def size(k: str) -> float:
+            s = tests[k][0]
+            return float(s) if np.isfinite(s) else -np.inf
+
+        passing = [k for k in tests if passes(k)]
+        test = max(passing or list(tests), key=size)
+        statistic, p = tests[test]
         return self._det(
-            ratio,
+            statistic,
             p,
-            f"residual power in the 3 lowest frequency bins is "
-            f"{ratio:.3g} x that of bins 4-20 (F-test p = {format_p(p)}){noise}; "
-            f"residual trend {slope:+.3g} over the fit part",
-            threshold=q,
+            f"{ramp_text}; {lf_text}; passing (above the level with p < {ALPHA:g}): "
+            f"{', '.join(passing) or 'neither'}; reported: the {test} test, its statistic "
+            "over its level",
+            threshold=self.threshold,
+            test=test,
+            ramp=ramp,
+            ramp_t=ramp_t,
+            ramp_p=p_ramp,
+            lf_ratio=ratio,
+            lf_p=p_lf,
+            lf_threshold=q,
         )
 
     def extend(self, ctx: nm.Context, nom: nm.Nominal, det: Detection) -> core.Model:

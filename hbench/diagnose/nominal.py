@@ -406,7 +406,7 @@ def equation_error_classes(
             break
         kept = trimmed
         st = classes.EqStructure(st.na, st.nb, st.delay, st.extra, kept)
-        found = fit_all(st, {c: found[c][0] or None for c in todo}, False)
+        found = fit_all(st, {c: found[c][0] or None for c in todo}, True)
     na, nb, delay = model.lin.na, max(model.lin.nb, 2), model.lin.delay
     out: dict[str, classes.ClassFit] = {}
     for cls, (theta, rss, _) in found.items():

@@ -1,8 +1,9 @@
 """Record-specific nulls: what the nominal noise model alone leaves, for the detectors' thresholds.
 
-The drift and time-varying thresholds (:mod:`hbench.diagnose.effects`) are calibrated on the
-generator's records, whose noise ``e / A(q)`` has a correlation time of a few dozen fast
-samples: short next to the record, as those statistics assume. A slow plant's equation-error
+The drift detector's low-frequency threshold and the time-varying threshold
+(:mod:`hbench.diagnose.effects`) are calibrated on the generator's records, whose noise
+``e / A(q)`` has a correlation time of a few dozen fast samples: short next to the record, as
+those statistics assume. A slow plant's equation-error
 noise (the paper's Section 6 example: poles near 0.98 at the fast rate, a correlation time of
 ~100 samples, starting from rest) wanders over the whole record, and the same statistics reach
 those thresholds on its noise alone. So for the blind route (p >= 2, noise model ``e / A``)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from itertools import pairwise
+from typing import Any
 
 import numpy as np
 from scipy import signal, stats
@@ -59,6 +60,86 @@ def low_frequency_ratio(e: np.ndarray, low: int = 3, ref: int = 20) -> tuple[flo
     ratio = float(low_frequency_ratios(e, low, ref))
     low, ref = _low_ref(np.size(e), low, ref)
     return ratio, float(stats.f.sf(ratio, 2 * low, 2 * (ref - low)))
+
+
+def noise_model_trend(
+    resid: np.ndarray,
+    a: np.ndarray,
+    *,
+    scale: float = 1.0,
+    span: float | None = None,
+) -> tuple[Any, Any, Any]:
+    """A ramp in a residual, tested under the noise model ``e / A(q)`` (prewhitened least squares).
+
+    Model of the residual ``r(n)``, ``n = 0 .. N-1``, under the nominal noise model (the paper's
+    eq. 2: equation error ``e / A``) with an offset and a ramp::
+
+        r(n) = c0 + c1 n + v(n),    A(q) v(n) = e(n),    e white, N(0, s^2)        (1)
+
+    with ``A(q) = 1 + a_1 q^-1 + ... + a_na q^-na``. Applying ``A(q)`` to (1) on the rows
+    ``n >= na``, where the filter needs no sample before the record (so no initial state)::
+
+        w(n) = (A r)(n) = c0 A(1) + c1 (A n)(n) + e(n),    n = na .. N-1          (2)
+
+    a linear regression with white errors and regressors fixed by ``A``. Ordinary least squares
+    on (2) is the generalised least squares estimate of ``(c0, c1)`` under (1) (the
+    prewhitening of Cochrane and Orcutt, 1949, J. Am. Stat. Assoc. 44: 32-61, with ``A``
+    known), and with ``m = N - na`` rows and the residual variance ``s2 = RSS / (m - 2)``::
+
+        t = c1_hat / sqrt(s2 [(X'X)^-1]_11)  ~  t(m - 2)   under c1 = 0           (3)
+
+    exactly for Gaussian ``e`` and a known ``A``; with a fitted ``A`` and a residual from
+    which a model fit has been projected, (3) is the usual large-sample approximation.
+
+    Parameters
+    ----------
+    resid
+        ``(N,)`` or ``(m, N)``: the residual, or one residual per row (tested row by row).
+    a
+        ``[1, a_1, ..., a_na]``: the noise model's denominator ``A(q)`` (``[1]``: white noise,
+        an ordinary t-test of the slope).
+    scale
+        The ramp's size is reported relative to this (e.g. the output's range).
+    span
+        Samples over which the ramp's size is reported: ``c1_hat * span`` (default ``N``, the
+        residual's length; a longer span extrapolates the slope).
+
+    Returns
+    -------
+    ramp, t, p
+        ``|c1_hat| span / scale``, the t statistic of (3) and its two-sided p-value; floats
+        for a 1-D ``resid``, ``(m,)`` arrays for a 2-D one. A residual too short for (2)
+        (``N - na < 3``) gives ``nan`` statistics and ``p = 1``.
+    """
+    r = np.asarray(resid, float)
+    one = r.ndim == 1
+    R = np.atleast_2d(r)
+    a = np.atleast_1d(np.asarray(a, float))
+    N = R.shape[-1]
+    na = a.size - 1
+    m = N - na
+    span = float(N if span is None else span)
+    if m < 3 or not np.isfinite(scale) or scale <= 0:
+        nan = np.full(R.shape[0], np.nan)
+        out = (nan, nan, np.ones(R.shape[0]))
+        return tuple(float(v[0]) for v in out) if one else out  # type: ignore[return-value]
+    n = np.arange(N, dtype=float)
+    # (2): the filter on the rows n >= na is the exact convolution (no initial state)
+    X = np.stack([np.convolve(np.ones(N), a, "valid"), np.convolve(n, a, "valid")], axis=1)
+    W = signal.lfilter(a, [1.0], R, axis=-1)[:, na:]
+    Q, Rx = np.linalg.qr(X)
+    beta = np.linalg.solve(Rx, Q.T @ W.T)  # (2, m_rows)
+    E = W.T - X @ beta
+    s2 = np.einsum("ij,ij->j", E, E) / (m - 2)
+    Rinv = np.linalg.inv(Rx)
+    v11 = float(Rinv[1] @ Rinv[1])  # [(X'X)^-1]_11 = row 1 of R^-1, squared
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = beta[1] / np.sqrt(s2 * v11)
+    p = np.where(np.isnan(t), 1.0, 2 * stats.t.sf(np.abs(t), m - 2))
+    ramp = np.abs(beta[1]) * span / scale
+    if one:
+        return float(ramp[0]), float(t[0]), float(p[0])
+    return ramp, t, p
 
 
 def robust_sigma(d: np.ndarray) -> float:
