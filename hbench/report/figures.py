@@ -13,6 +13,7 @@ matplotlib is imported inside the functions (start-up time of the CLI). Layouts 
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import io
 import math
@@ -86,37 +87,79 @@ def _render(spec: FigureSpec) -> bytes:
     return save(globals()[name](*args, **kwargs), stem)
 
 
-def render_many(specs: Sequence[FigureSpec], processes: int = 1) -> list[bytes]:
+def render_many(
+    specs: Sequence[FigureSpec],
+    processes: int = 1,
+    *,
+    workers: Any = None,
+    ready: Mapping[Path, Any] | None = None,
+) -> list[bytes]:
     """Render and save every spec; PNG bytes in spec order. ``processes > 1``: this process
     and ``processes - 1`` worker processes of :func:`hbench.bench.parallel.pool` share the
     figures by their rendering cost (a worker forked from this process, whose caches are
-    warm, starts without importing anything)."""
-    if processes <= 1 or len(specs) <= 1:
-        return [_render(s) for s in specs]
+    warm, starts without importing anything).
+
+    ``workers``, a pool of :func:`hbench.bench.parallel.pool` already started (after
+    :func:`warm_up`), takes the workers' share in place of a pool started here (left running);
+    ``ready`` maps the stem of a spec already submitted to it (:func:`submit`) to its future:
+    that spec is not rendered again, its PNG bytes are the future's."""
+    ready = dict(ready or {})
+    todo = [i for i, s in enumerate(specs) if s[0] is None or Path(s[0]) not in ready]
+    out: list[bytes] = [b""] * len(specs)
+    if processes <= 1 or len(todo) <= 1:
+        if workers is None or not todo:
+            for i in todo:
+                out[i] = _render(specs[i])
+            return _with_ready(specs, out, ready)
     from hbench.bench import parallel
 
     warm_up()  # import once in the parent: the forked workers inherit it
-    mine, *theirs = _shares(specs, min(processes, len(specs)))
-    out: list[bytes] = [b""] * len(specs)
-    with parallel.pool(len(theirs)) as pool:
-        futures = {i: pool.submit(_render, specs[i]) for share in theirs for i in share}
-        for i in mine:
-            out[i] = _render(specs[i])
+    busy = sum(_COST.get(f.spec_name, 1) for f in ready.values() if not f.done())
+    count = (
+        min(max(processes, 2), len(todo) + 1) if workers is not None else min(processes, len(todo))
+    )
+    mine, *theirs = _shares([specs[i] for i in todo], count, [0.0] + [busy] * (count - 1))
+    with contextlib.ExitStack() as stack:
+        pool = workers
+        if pool is None:
+            pool = stack.enter_context(parallel.pool(len(theirs)))
+        futures = {todo[j]: pool.submit(_render, specs[todo[j]]) for share in theirs for j in share}
+        for j in mine:
+            out[todo[j]] = _render(specs[todo[j]])
         for i, future in futures.items():
             out[i] = future.result()
+    return _with_ready(specs, out, ready)
+
+
+def _with_ready(
+    specs: Sequence[FigureSpec], out: list[bytes], ready: Mapping[Path, Any]
+) -> list[bytes]:
+    for i, spec in enumerate(specs):
+        if spec[0] is not None and Path(spec[0]) in ready:
+            out[i] = ready[Path(spec[0])].result()
     return out
 
 
-def _shares(specs: Sequence[FigureSpec], processes: int) -> list[list[int]]:
+def submit(workers: Any, spec: FigureSpec) -> Any:
+    """Render ``spec`` in ``workers`` (a pool of :func:`hbench.bench.parallel.pool`); its future
+    (the PNG bytes), for :func:`render_many`'s ``ready``."""
+    future = workers.submit(_render, spec)
+    future.spec_name = spec[1]  # its cost, while it runs (render_many's shares)
+    return future
+
+
+def _shares(
+    specs: Sequence[FigureSpec], processes: int, load: Sequence[float] | None = None
+) -> list[list[int]]:
     """The specs' indices per process, the costliest first, each to the process with the least
-    cost so far (:data:`_COST`), so that the processes finish together; the first share is
-    this process's."""
-    load = [0.0] * processes
+    cost so far (:data:`_COST`; ``load``: the cost each has already), so that the processes
+    finish together; the first share is this process's."""
+    loads = list(load) if load is not None else [0.0] * processes
     shares: list[list[int]] = [[] for _ in range(processes)]
     for i in sorted(range(len(specs)), key=lambda i: -_COST.get(specs[i][1], 1)):
-        k = load.index(min(load))
+        k = loads.index(min(loads))
         shares[k].append(i)
-        load[k] += _COST.get(specs[i][1], 1)
+        loads[k] += _COST.get(specs[i][1], 1)
     return shares
 
 
