@@ -328,4 +328,3 @@ def test_figures_shared_with_a_started_worker_are_those_of_one_process(tmp_path)
     assert two == one
     for name in ("figure4.png", "figure5.png"):
         assert (tmp_path / "two" / name).read_bytes() == (tmp_path / "one" / name).read_bytes()
-    assert figures._shares(specs, 2, [0.0, 10.0]) == [[1, 0], []]  # the busy worker: none

@@ -96,75 +96,102 @@ def render_many(
 ) -> list[bytes]:
     """Render and save every spec; PNG bytes in spec order. ``processes > 1``: this process
     and ``processes - 1`` worker processes of :func:`hbench.bench.parallel.pool` share the
-    figures by their rendering cost (a worker forked from this process, whose caches are
-    warm, starts without importing anything).
+    figures (a worker forked from this process, whose caches are warm, starts without importing
+    anything): each takes the costliest figure left whenever it is free (a thread of this
+    process hands the workers theirs), so that all finish together.
 
-    ``workers``, a pool of :func:`hbench.bench.parallel.pool` already started (after
-    :func:`warm_up`), takes the workers' share in place of a pool started here (left running);
-    ``ready`` maps the stem of a spec already submitted to it (:func:`submit`) to its future:
-    that spec is not rendered again, its PNG bytes are the future's."""
+    ``workers``, a pool of ``processes - 1`` workers of :func:`hbench.bench.parallel.pool`
+    already started (after :func:`warm_up`), takes the workers' figures in place of a pool
+    started here (left running); ``ready`` maps the stem of a spec already submitted to it
+    (:func:`submit`) to its future: that spec is not rendered again, its PNG bytes are the
+    future's, and the workers take figures of this batch once those are done."""
     ready = dict(ready or {})
     todo = [i for i, s in enumerate(specs) if s[0] is None or Path(s[0]) not in ready]
     out: list[bytes] = [b""] * len(specs)
-    if processes <= 1 or len(todo) <= 1:
-        if workers is None or not todo:
-            for i in todo:
-                out[i] = _render(specs[i])
-            return _with_ready(specs, out, ready)
-    from hbench.bench import parallel
-
-    warm_up()  # import once in the parent: the forked workers inherit it
-    busy = sum(_COST.get(f.spec_name, 1) for f in ready.values() if not f.done())
-    count = (
-        min(max(processes, 2), len(todo) + 1) if workers is not None else min(processes, len(todo))
-    )
-    mine, *theirs = _shares([specs[i] for i in todo], count, [0.0] + [busy] * (count - 1))
-    with contextlib.ExitStack() as stack:
-        pool = workers
-        if pool is None:
-            pool = stack.enter_context(parallel.pool(len(theirs)))
-        futures = {todo[j]: pool.submit(_render, specs[todo[j]]) for share in theirs for j in share}
-        for j in mine:
-            out[todo[j]] = _render(specs[todo[j]])
-        for i, future in futures.items():
-            out[i] = future.result()
-    return _with_ready(specs, out, ready)
-
-
-def _with_ready(
-    specs: Sequence[FigureSpec], out: list[bytes], ready: Mapping[Path, Any]
-) -> list[bytes]:
+    if workers is None and (processes <= 1 or len(todo) <= 1):
+        for i in todo:
+            out[i] = _render(specs[i])
+    elif todo:
+        warm_up()  # import once in the parent: the forked workers inherit it
+        todo.sort(key=lambda i: -_COST.get(specs[i][1], 1))
+        with contextlib.ExitStack() as stack:
+            _share(specs, todo, out, processes, workers, list(ready.values()), stack)
     for i, spec in enumerate(specs):
         if spec[0] is not None and Path(spec[0]) in ready:
             out[i] = ready[Path(spec[0])].result()
     return out
 
 
+def _share(
+    specs: Sequence[FigureSpec],
+    todo: list[int],
+    out: list[bytes],
+    processes: int,
+    workers: Any,
+    busy: list[Any],
+    stack: contextlib.ExitStack,
+) -> None:
+    """:func:`render_many`'s figures ``todo`` (costliest first) shared between this process and
+    the workers (``busy``: the workers' futures submitted before)."""
+    import concurrent.futures as cf
+    import threading
+    from collections import deque
+
+    slots = max(1, min(processes, len(todo) + 1) - 1)
+    left = deque(todo)
+    lock = threading.Lock()
+    futures: dict[int, Any] = {}
+
+    def take() -> int | None:
+        with lock:
+            return left.popleft() if left else None
+
+    if workers is None:  # started here, from this thread (a fork from a thread could copy
+        from hbench.bench import parallel  # a lock that another thread holds)
+
+        workers = stack.enter_context(parallel.pool(slots))
+        for _ in range(slots):
+            i = take()
+            if i is not None:
+                futures[i] = workers.submit(_render, specs[i])
+                busy.append(futures[i])
+
+    def feed() -> None:  # a worker's next figure as soon as it is free
+        running = {f for f in busy if not f.done()}
+        while True:
+            while len(running) >= slots:
+                done, _ = cf.wait(running, return_when=cf.FIRST_COMPLETED)
+                running -= done
+            i = take()
+            if i is None:
+                return
+            try:
+                futures[i] = workers.submit(_render, specs[i])
+            except BaseException:  # e.g. a broken pool: this process renders what is left
+                with lock:
+                    left.appendleft(i)
+                return
+            running.add(futures[i])
+
+    feeder = threading.Thread(target=feed, daemon=True)
+    feeder.start()
+    while (i := take()) is not None:
+        out[i] = _render(specs[i])
+    feeder.join()
+    while (i := take()) is not None:  # what the feeder gave back
+        out[i] = _render(specs[i])
+    for i, future in futures.items():
+        out[i] = future.result()
+
+
 def submit(workers: Any, spec: FigureSpec) -> Any:
     """Render ``spec`` in ``workers`` (a pool of :func:`hbench.bench.parallel.pool`); its future
     (the PNG bytes), for :func:`render_many`'s ``ready``."""
-    future = workers.submit(_render, spec)
-    future.spec_name = spec[1]  # its cost, while it runs (render_many's shares)
-    return future
-
-
-def _shares(
-    specs: Sequence[FigureSpec], processes: int, load: Sequence[float] | None = None
-) -> list[list[int]]:
-    """The specs' indices per process, the costliest first, each to the process with the least
-    cost so far (:data:`_COST`; ``load``: the cost each has already), so that the processes
-    finish together; the first share is this process's."""
-    loads = list(load) if load is not None else [0.0] * processes
-    shares: list[list[int]] = [[] for _ in range(processes)]
-    for i in sorted(range(len(specs)), key=lambda i: -_COST.get(specs[i][1], 1)):
-        k = loads.index(min(loads))
-        shares[k].append(i)
-        loads[k] += _COST.get(specs[i][1], 1)
-    return shares
+    return workers.submit(_render, spec)
 
 
 #: Relative rendering cost of the figures, PNG and PDF (CPU seconds of the reproduction's
-#: defaults, in tenths; the shares of :func:`render_many`).
+#: defaults, in tenths): :func:`render_many` renders the costliest first.
 _COST = {
     "xu_grid": 8,
     "bias_std_vs_snr": 8,
