@@ -360,6 +360,7 @@ def _tables_and_report(
 
 def _cmd(args: argparse.Namespace) -> int:
     from hbench.sim.scenarios import parse_value
+    from hbench.system.runtime import collector_paused
     from hbench.system.writable import check_output
 
     if args.out is not None:  # before any work: a folder one can write in
@@ -370,15 +371,16 @@ def _cmd(args: argparse.Namespace) -> int:
             raise InputError(f"--set takes KEY=VALUE, got {item!r}")
         key, value = item.split("=", 1)
         overrides.append((key, parse_value(value)))
-    reproduce(
-        runs=args.runs,
-        out=args.out,
-        seed=args.seed,
-        investigate_=args.investigate,
-        jobs=args.jobs,
-        overrides=overrides,
-        structure_mode=args.structure,
-    )
+    with collector_paused():  # a few seconds of work: hbench.system.runtime
+        reproduce(
+            runs=args.runs,
+            out=args.out,
+            seed=args.seed,
+            investigate_=args.investigate,
+            jobs=args.jobs,
+            overrides=overrides,
+            structure_mode=args.structure,
+        )
     return 0
 
 
