@@ -308,3 +308,23 @@ def test_bias_figure_has_the_papers_bias_hollow(run_dir) -> None:
         assert fig.legends[0].get_texts()[-1].get_text() == "paper (hollow)"
     finally:
         figures.pyplot().close(fig)
+
+
+def test_figures_shared_with_a_started_worker_are_those_of_one_process(tmp_path) -> None:
+    """``render_many`` with a worker already started and a figure already submitted to it
+    (the reproduction's x-U graphs, drawn early) writes and returns the PNGs of one process."""
+    from hbench.bench import parallel
+
+    x = np.linspace(-1.0, 1.0, 60)
+    example = {"x": x, "U": x**3, "sigma2": 1e-3, "estimates": {"wang-lsm": x**3 + 0.01}}
+    (tmp_path / "one").mkdir()
+    (tmp_path / "two").mkdir()
+    one = figures.render_many(figures.paper_figure_specs(example, tmp_path / "one"), 1)
+    specs = figures.paper_figure_specs(example, tmp_path / "two")
+    figures.warm_up()
+    with parallel.pool(1) as workers:
+        early = {specs[1][0]: figures.submit(workers, specs[1])}
+        two = figures.render_many(specs, 2, workers=workers, ready=early)
+    assert two == one
+    for name in ("figure4.png", "figure5.png"):
+        assert (tmp_path / "two" / name).read_bytes() == (tmp_path / "one" / name).read_bytes()

@@ -539,3 +539,27 @@ def test_the_alternatives_are_data_each_one_change_from_the_defaults():
     assert all(a.describe() != pl.Config().describe() | {"label": a.label} for a in alternatives)
     for a in alternatives:
         scenarios.build(pl.scenario_spec(a, pl.TYPICAL_LEVEL))
+
+
+def test_levels_in_parts_give_the_rows_of_one_process(monkeypatch):
+    """With workers the levels are cut into parts of runs (``PART_RUNS``): the rows, the example
+    and the task order are those of one process computing each level whole (but for the timed
+    quantity ``seconds``)."""
+    from hbench.bench import runner
+
+    monkeypatch.setattr(pl, "PART_RUNS", 2)
+    tasks = pl.level_tasks(pl.Config(), 5, 7, (2, 3, 2), ("wang-lsm", "oracle"))[:2]
+    assert [len(pl._level_parts(t)) for t in tasks] == [1, 1]  # chunks of 200 runs: whole
+    pieces = runner._pieces  # the runner's chunks of 2 runs (its rows are in chunk order)
+    monkeypatch.setattr(runner, "_pieces", lambda runs, chunk, jobs: pieces(runs, 2, jobs))
+    assert [len(pl._level_parts(t)) for t in tasks] == [3, 3]
+    one = pl.run_levels(tasks, 1)
+    parts = pl.run_levels(tasks, 2)
+    for (rows1, ex1, _), (rows2, ex2, _) in zip(one, parts, strict=True):
+        keep = rows1["quantity"] != "seconds"
+        pd.testing.assert_frame_equal(
+            rows1[keep].reset_index(drop=True), rows2[keep].reset_index(drop=True)
+        )
+        assert ex1.keys() == ex2.keys()
+        for key in ("x", "U"):
+            np.testing.assert_array_equal(ex1.get(key), ex2.get(key))

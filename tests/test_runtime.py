@@ -60,3 +60,21 @@ def test_run_cell_leaves_the_process_allocator_alone():
 
 def test_the_hbench_command_opts_in():
     assert _allocator_tuned_after("from hbench.cli import main\nmain(['plugins'])")
+
+
+def test_collector_paused_restores_the_collector():
+    import gc
+
+    from hbench.system.runtime import collector_paused
+
+    assert gc.isenabled()
+    with collector_paused():
+        assert not gc.isenabled()
+    assert gc.isenabled()
+    gc.disable()
+    try:
+        with collector_paused():
+            pass
+        assert not gc.isenabled()  # as it was
+    finally:
+        gc.enable()

@@ -6,7 +6,9 @@ anything; elsewhere the platform's default method, and what is sent must pickle)
 it starts computes under one BLAS thread (many small products: threads cost more than they
 share, and two processes' threads would compete for the same cores), with the allocator
 settings of :func:`hbench.system.runtime.tune_allocator` (a process hbench starts, so its tuning is
-hbench's to set; ``HBENCH_TUNE_MALLOC=0`` turns it off), and exits when its parent dies.
+hbench's to set; ``HBENCH_TUNE_MALLOC=0`` turns it off), leaves the objects it inherits out of
+the garbage collector's passes (``gc.freeze``: a pass writes to every object it visits, so
+each worker copied most of the parent's heap page by page), and exits when its parent dies.
 
 :func:`map_chunks` computes a cell's chunks (:func:`hbench.bench.runner.run_cell` with
 ``jobs > 1``): the first ``1/jobs`` of them in this process, the others in a pool of ``jobs - 1``
@@ -23,6 +25,7 @@ in its message (hbench's :class:`~hbench.errors.InputError` as it is).
 from __future__ import annotations
 
 import contextlib
+import gc
 import logging
 import multiprocessing as mp
 import multiprocessing.connection
@@ -53,8 +56,11 @@ def _context() -> Any:
 
 
 def _start_worker(initializer: Callable[..., Any] | None, initargs: tuple[Any, ...]) -> None:
-    """Every worker's start: one BLAS thread, the allocator tuned, log records left to the
-    caller (no handler of the parent's), exit when the parent dies; then ``initializer``."""
+    """Every worker's start: the objects inherited through the fork left out of the garbage
+    collector's passes (``gc.freeze``: a pass would write to every one of them, copying the
+    parent's pages into the worker), one BLAS thread, the allocator tuned, log records left to
+    the caller (no handler of the parent's), exit when the parent dies; then ``initializer``."""
+    gc.freeze()  # the worker's own objects are still collected
     limit_blas_threads()  # for the worker's life: the process is hbench's
     tune_allocator()
     logging.getLogger().handlers.clear()

@@ -152,6 +152,44 @@ def run_cell(
     """
     if int(jobs) < 1:
         raise InputError(f"jobs must be >= 1, got {jobs}")
+    work = cell_work(
+        scenario,
+        methods,
+        seed,
+        options,
+        cell=cell,
+        keep_example=keep_example,
+        method_timeout=method_timeout,
+    )
+    pieces = _pieces(runs, chunk, jobs)
+    rows: list[tidy.Block] = []
+    example: dict[str, Any] = {}
+    done = 0
+    with batch_settings():  # one BLAS thread, restored afterwards (hbench.system.runtime)
+        chunks = parallel.map_chunks(_run_chunk, work, pieces, jobs)
+        for (_start, n), (frames, ex) in zip(pieces, chunks, strict=True):
+            rows.extend(frames)
+            if ex and not example:
+                example = ex
+            done += n
+            if progress is not None:
+                progress(done, runs)
+    return CellResult(rows=tidy.assemble(rows), example=example)
+
+
+def cell_work(
+    scenario: Scenario,
+    methods: Mapping[str, Identifier],
+    seed: np.random.SeedSequence | int,
+    options: IdentifyOptions | None = None,
+    *,
+    cell: str = "",
+    keep_example: bool = False,
+    method_timeout: float | None = None,
+) -> _Work:
+    """What every chunk of a cell needs (:func:`run_cell`'s arguments of the same names); with
+    :func:`cell_blocks`, a cell's runs computed in parts (e.g. by several processes) and
+    assembled by :func:`hbench.bench.tidy.assemble` in run order give :func:`run_cell`'s rows."""
     if method_timeout is not None and not method_timeout > 0:
         raise InputError(f"method_timeout must be > 0 seconds or null, got {method_timeout}")
     plant = scenario.discrete_plant
@@ -168,21 +206,29 @@ def run_cell(
         "snr_target": scenario.snr if scenario.snr is not None else np.nan,
         "seed": str(seq.entropy),
     }
-    work = _Work(scenario, dict(methods), options, ids, seq, keep_example, method_timeout)
-    pieces = _pieces(runs, chunk, jobs)
-    rows: list[tidy.Block] = []
+    return _Work(scenario, dict(methods), options, ids, seq, keep_example, method_timeout)
+
+
+def cell_blocks(
+    work: _Work, pieces: Sequence[tuple[int, int]]
+) -> tuple[list[tidy.Block], dict[str, Any]]:
+    """The tidy blocks of the runs of ``pieces`` (``(start, n)`` each, computed as one chunk of
+    :func:`run_cell`), in order, and run 0's example when ``work`` keeps one and run 0 is among
+    them; one BLAS thread meanwhile, as in :func:`run_cell`."""
+    blocks: list[tidy.Block] = []
     example: dict[str, Any] = {}
-    done = 0
-    with batch_settings():  # one BLAS thread, restored afterwards (hbench.system.runtime)
-        chunks = parallel.map_chunks(_run_chunk, work, pieces, jobs)
-        for (_start, n), (frames, ex) in zip(pieces, chunks, strict=True):
-            rows.extend(frames)
+    with batch_settings():
+        for start, n in pieces:
+            frames, ex = _run_chunk(work, start, n)
+            blocks.extend(frames)
             if ex and not example:
                 example = ex
-            done += n
-            if progress is not None:
-                progress(done, runs)
-    return CellResult(rows=tidy.assemble(rows), example=example)
+    return blocks, example
+
+
+def chunks_of(runs: int, chunk: int = 200) -> list[tuple[int, int]]:
+    """``(start, n)`` of the chunks :func:`run_cell` computes ``runs`` in (one process)."""
+    return _pieces(runs, chunk, 1)
 
 
 def _pieces(runs: int, chunk: int, jobs: int) -> list[tuple[int, int]]:

@@ -374,6 +374,71 @@ def run_tables12(config: Config, runs: int, seed: int) -> dict[str, Any]:
     }
 
 
+#: Runs of one part of a level computed by a worker process (two chunks of the runner's 200):
+#: the parts of every level shared by the workers keep them busy together to the end.
+PART_RUNS = 400
+
+
+def _level_parts(task: LevelTask) -> list[list[tuple[int, int]]]:
+    """The level's runs as parts of consecutive runner chunks (``(start, n)`` each), at most
+    :data:`PART_RUNS` runs per part; one part for a level whose rows the runner cannot give."""
+    if task.config.custom_loop:
+        return [[(0, task.runs)]]
+    from hbench.bench.runner import chunks_of
+
+    parts: list[list[tuple[int, int]]] = [[]]
+    for piece in chunks_of(task.runs):
+        if parts[-1] and sum(n for _, n in parts[-1]) + piece[1] > PART_RUNS:
+            parts.append([])
+        parts[-1].append(piece)
+    return parts
+
+
+def run_level_part(
+    task: LevelTask, pieces: Sequence[tuple[int, int]]
+) -> tuple[Any, dict[str, Any], float]:
+    """Part of a level: the tidy blocks of the runs of ``pieces`` (:func:`hbench.bench.runner.
+    cell_blocks`), the example if run 0 is among them, and the part's wall time. A level the
+    runner cannot score (:attr:`Config.custom_loop`) is one part: its rows whole
+    (:func:`run_level`)."""
+    if task.config.custom_loop:
+        return run_level(task)
+    from hbench.bench.runner import cell_blocks, cell_work
+    from hbench.sim import scenarios
+
+    t0 = time.perf_counter()
+    config = task.config
+    scenario = scenarios.build(scenario_spec(config, task.sigma2))
+    work = cell_work(
+        scenario,
+        make_methods(config, task.methods),
+        level_seed(task.seed, task.sigma2),
+        _options(scenario, config, task.structure),
+        cell=cell_name(task.sigma2),
+        keep_example=task.keep_example,
+    )
+    blocks, example = cell_blocks(work, pieces)
+    if example:
+        example.update(
+            cell=cell_name(task.sigma2), nonlinearity=scenario.nonlinearity.name, sigma2=task.sigma2
+        )
+    return blocks, example, time.perf_counter() - t0
+
+
+def _joined(
+    task: LevelTask, parts: list[tuple[Any, dict[str, Any], float]]
+) -> tuple[Any, dict[str, Any], float]:
+    """A level's result from its parts' (in run order): :func:`run_level`'s rows, example and
+    the sum of the parts' times."""
+    if task.config.custom_loop:
+        return parts[0]
+    from hbench.bench import tidy
+
+    blocks = [b for part in parts for b in part[0]]
+    example = next((part[1] for part in parts if part[1]), {})
+    return tidy.assemble(blocks), example, sum(part[2] for part in parts)
+
+
 def run_levels(
     tasks: Sequence[LevelTask],
     jobs: int,
@@ -382,10 +447,11 @@ def run_levels(
     on_result: Callable[[LevelTask, tuple[Any, dict[str, Any], float]], Any] | None = None,
 ) -> list[tuple[Any, dict[str, Any], float]]:
     """Run the tasks (in ``jobs`` worker processes of :func:`hbench.bench.parallel.pool` when
-    ``jobs > 1``), in task order;
+    ``jobs > 1``, each level cut into parts of at most :data:`PART_RUNS` runs, which the
+    workers take in task order: the rows are those of one process), in task order;
     ``while_waiting()`` runs in the parent meanwhile (e.g. an import the next step needs), then
-    ``on_result(task, result)`` for each result as it comes in (e.g. a figure of one level
-    drawn while the workers compute the others)."""
+    ``on_result(task, result)`` for each level as soon as all its parts are in (e.g. a figure
+    of one level drawn while the workers compute the others)."""
     if jobs <= 1 or len(tasks) <= 1:
         if while_waiting:
             while_waiting()
@@ -402,14 +468,23 @@ def run_levels(
 
     from hbench.bench import parallel
 
+    parts = [_level_parts(task) for task in tasks]
+    done: list[dict[int, tuple[Any, dict[str, Any], float]]] = [{} for _ in tasks]
     results: dict[int, tuple[Any, dict[str, Any], float]] = {}
     with parallel.pool(jobs) as pool:
-        futures = {pool.submit(run_level, task): i for i, task in enumerate(tasks)}
+        futures = {
+            pool.submit(run_level_part, task, pieces): (i, k)
+            for i, task in enumerate(tasks)
+            for k, pieces in enumerate(parts[i])
+        }
         if while_waiting:
             while_waiting()
         for fut in as_completed(futures):
-            i = futures[fut]
-            results[i] = fut.result()
+            i, k = futures[fut]
+            done[i][k] = fut.result()
+            if len(done[i]) < len(parts[i]):
+                continue
+            results[i] = _joined(tasks[i], [done[i][k] for k in range(len(parts[i]))])
             if progress:
                 progress(tasks[i], results[i][2])
             if on_result:

@@ -56,6 +56,7 @@ produces it: ``docs/experiments/reproduce-investigation.md``.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import time
@@ -159,8 +160,6 @@ def reproduce(
 
     scenarios.build(scenario_spec(config, TYPICAL_LEVEL))  # bad overrides fail before any work
 
-    import pandas as pd
-
     from hbench.tables import results as res
 
     out_dir = res.new_output_dir(Path(out), "reproduce")
@@ -187,26 +186,91 @@ def reproduce(
 
         figures.warm_up()
 
-    drawn: list[Any] = []
+    drawn: list[Any] = []  # the example drawn; with jobs > 1, its figures' futures
+    early: dict[Path, Any] = {}  # the report's figures submitted early: stem -> future
+    with contextlib.ExitStack() as stack:
+        figure_workers: list[Any] = []  # a worker that draws while this process goes on
 
-    def draw_example(task: LevelTask, result: tuple[Any, dict[str, Any], float]) -> None:
-        # Figures 4 and 5 need one level's example: drawn here as soon as it is in, while the
-        # workers compute the other levels, instead of with the report's figures at the end
-        if result[1] and not drawn:
+        def draw_example(task: LevelTask, result: tuple[Any, dict[str, Any], float]) -> None:
+            # Figures 4 and 5 (and the report's x-U graphs) need one level's example: drawn as
+            # soon as it is in, while the workers compute the other levels, instead of with
+            # the report's figures at the end; with jobs > 1 by a worker forked now (matplotlib
+            # imported), so that this process goes on with the tables meanwhile
+            if not result[1] or drawn:
+                return
             from hbench.report import figures
 
-            specs = figures.paper_figure_specs(result[1], out_dir, estimate="wang-lsm")
-            figures.render_many(specs, 1)
             drawn.append(task.sigma2)
+            specs = figures.paper_figure_specs(result[1], out_dir, estimate="wang-lsm")
+            if jobs <= 1:
+                figures.render_many(specs, 1)
+                return
+            from hbench.bench import parallel
 
-    tasks = level_tasks(config, runs, seed, structure, ALL_METHODS)
-    results = run_levels(
-        tasks,
-        jobs,
-        progress,
-        while_waiting=warm_up if report else None,
-        on_result=draw_example,
-    )
+            figures.warm_up()
+            workers = stack.enter_context(parallel.pool(1))
+            figure_workers.append(workers)
+            drawn.extend(figures.submit(workers, spec) for spec in specs)
+            if report:
+                from hbench.report.build import xu_spec
+
+                (out_dir / "report").mkdir()
+                spec = xu_spec(out_dir / "report", [result[1]])
+                early[spec[0]] = figures.submit(workers, spec)
+
+        tasks = level_tasks(config, runs, seed, structure, ALL_METHODS)
+        results = run_levels(
+            tasks,
+            jobs,
+            progress,
+            while_waiting=warm_up if report else None,
+            on_result=draw_example,
+        )
+        _tables_and_report(
+            out_dir,
+            results,
+            tab,
+            config,
+            runs,
+            seed,
+            structure,
+            structure_mode,
+            investigate_,
+            jobs,
+            report,
+            figure_workers[0] if figure_workers else None,
+            early,
+        )
+        for future in drawn[1:]:  # Figures 4 and 5 written (or their error raised)
+            future.result()
+    log(f"done in {time.perf_counter() - t_start:.1f} s")
+    return out_dir
+
+
+def _tables_and_report(
+    out_dir: Path,
+    results: Sequence[tuple[Any, dict[str, Any], float]],
+    tab: dict[str, Any],
+    config: Config,
+    runs: int,
+    seed: int,
+    structure: tuple[int, int, int],
+    structure_mode: str,
+    investigate_: bool,
+    jobs: int,
+    report: bool,
+    workers: Any,
+    early: dict[Path, Any],
+) -> Path | None:
+    """The comparison, the tables, the report and the rows of the levels' ``results``; the
+    report's path (None without one). ``workers`` and ``early``: the worker drawing figures
+    and the report's figures it was given (:func:`hbench.report.build.build_report`)."""
+    import pandas as pd
+
+    from hbench.tables import results as res
+
+    sel = tab["selection"]["wang-lsm"]
+    sel_iv = tab["selection"]["wang-iv"]
     rows = pd.concat([r[0] for r in results], ignore_index=True)
     examples = [r[1] for r in results if r[1]]
     values = LevelValues.of(rows)  # read by every comparison of these rows
@@ -272,21 +336,34 @@ def reproduce(
             out_dir,
         )
     log("tables written; rendering the figures and the report")
+    path = None
     if report:
         from hbench.report import build as rep
 
-        path = rep.build_report(out_dir, out_dir / "report", rows=rows, tables=tables, jobs=jobs)
+        if len(examples) != 1:  # the x-U graphs drawn early are not the report's: drawn again
+            for future in early.values():
+                future.result()
+            early = {}
+        path = rep.build_report(
+            out_dir,
+            out_dir / "report",
+            rows=rows,
+            tables=tables,
+            jobs=jobs,
+            workers=workers,
+            ready=early,
+        )
     rows.to_parquet(out_dir / "rows.parquet", index=False)  # last: no fork after pyarrow
     print(summary.text() + selection_text + "\n" + steps_text, end="")
     if report:
         print(f"report: {path}")
     print(f"results: {out_dir}")
-    log(f"done in {time.perf_counter() - t_start:.1f} s")
-    return out_dir
+    return path
 
 
 def _cmd(args: argparse.Namespace) -> int:
     from hbench.sim.scenarios import parse_value
+    from hbench.system.runtime import collector_paused
     from hbench.system.writable import check_output
 
     if args.out is not None:  # before any work: a folder one can write in
@@ -297,15 +374,16 @@ def _cmd(args: argparse.Namespace) -> int:
             raise InputError(f"--set takes KEY=VALUE, got {item!r}")
         key, value = item.split("=", 1)
         overrides.append((key, parse_value(value)))
-    reproduce(
-        runs=args.runs,
-        out=args.out,
-        seed=args.seed,
-        investigate_=args.investigate,
-        jobs=args.jobs,
-        overrides=overrides,
-        structure_mode=args.structure,
-    )
+    with collector_paused():  # a few seconds of work: hbench.system.runtime
+        reproduce(
+            runs=args.runs,
+            out=args.out,
+            seed=args.seed,
+            investigate_=args.investigate,
+            jobs=args.jobs,
+            overrides=overrides,
+            structure_mode=args.structure,
+        )
     return 0
 
 

@@ -506,6 +506,12 @@ def _fold(summary: str, inner: str, open_: bool = False) -> str:
 # --------------------------------------------------------------------------- the report
 
 
+def xu_spec(out: Path, examples: Sequence[Mapping[str, Any]]) -> Any:
+    """The report's x-U graphs (``out/xu``) of ``examples`` (:func:`load_examples`' items),
+    as a :data:`hbench.report.figures.FigureSpec`."""
+    return (out / "xu", "xu_grid", (_pick_examples(examples), method_label), {})
+
+
 def _pick_examples(examples: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
     """One example per nonlinearity (the middle one by sigma^2 when there are several)."""
     by: dict[str, list[Mapping[str, Any]]] = {}
@@ -812,6 +818,8 @@ def build_report(
     jobs: int = 1,
     extra_figures: Sequence[Any] = (),
     spread: str = "ci",
+    workers: Any = None,
+    ready: Mapping[Path, Any] | None = None,
 ) -> Path:
     """Write the report of ``run_dir`` into ``out``; returns the path of ``report.html``.
 
@@ -823,7 +831,10 @@ def build_report(
     :func:`hbench.tables.results.write_tables`), are not computed again; ``jobs > 1`` renders
     the figures in worker processes (:mod:`hbench.bench.parallel`); ``extra_figures``
     (:data:`hbench.report.figures.FigureSpec`) are rendered in the same batch (the
-    reproduction's Figures 4 and 5).
+    reproduction's Figures 4 and 5); ``workers`` and ``ready`` are
+    :func:`hbench.report.figures.render_many`'s: a pool already started that renders the
+    workers' share, and the figures already submitted to it (the reproduction's x-U graphs,
+    :func:`xu_spec`, drawn while it computes).
 
     The steps, in order: the output folder (:func:`_report_dir`), the statistics and the
     headline (:func:`_report_stats`), the tables written beside the page
@@ -847,7 +858,7 @@ def build_report(
     for name, table in (beyond.tables if beyond else {}).items():
         write_table(out, name, table)
     figs, beyond_pngs = _report_figures(
-        out, run_dir, stats, shown, spread, beyond, extra_figures, jobs
+        out, run_dir, stats, shown, spread, beyond, extra_figures, jobs, workers, ready
     )
     page = [
         "<!DOCTYPE html>",
@@ -971,6 +982,8 @@ def _report_figures(
     beyond: Any,
     extra_figures: Sequence[Any],
     jobs: int,
+    workers: Any = None,
+    ready: Mapping[Path, Any] | None = None,
 ) -> tuple[list[str], list[bytes]]:
     """Render every figure in one batch: the page's figures as HTML in page order (a note
     where a figure has no data), and the PNGs of the beyond-the-paper section."""
@@ -1016,7 +1029,7 @@ def _report_figures(
         (
             bool(examples),
             "fig-xu",
-            (out / "xu", "xu_grid", (_pick_examples(examples), method_label), {}),
+            xu_spec(out, examples),
             "x(n) against U(n), one realisation per nonlinearity: the true U, then each "
             "method's estimate scaled by the true gain b1 (the fitness scaling).",
             '<p class="note" id="no-examples">No examples.npz under this folder (sweeps do not '
@@ -1054,7 +1067,10 @@ def _report_figures(
             slots.append(note)
     beyond_figures = beyond.figures if beyond else []
     pngs = figures.render_many(
-        [*extra_figures, *(p[1] for p in planned), *(f[1] for f in beyond_figures)], jobs
+        [*extra_figures, *(p[1] for p in planned), *(f[1] for f in beyond_figures)],
+        jobs,
+        workers=workers,
+        ready=ready,
     )
     pngs = pngs[len(extra_figures) :]
     figs = [

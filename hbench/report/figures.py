@@ -13,6 +13,7 @@ matplotlib is imported inside the functions (start-up time of the CLI). Layouts 
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import io
 import math
@@ -86,31 +87,119 @@ def _render(spec: FigureSpec) -> bytes:
     return save(globals()[name](*args, **kwargs), stem)
 
 
-def render_many(specs: Sequence[FigureSpec], processes: int = 1) -> list[bytes]:
-    """Render and save every spec; PNG bytes in spec order. ``processes > 1``: in worker
-    processes of :func:`hbench.bench.parallel.pool`."""
-    if processes <= 1 or len(specs) <= 1:
-        return [_render(s) for s in specs]
-    from hbench.bench import parallel
+def render_many(
+    specs: Sequence[FigureSpec],
+    processes: int = 1,
+    *,
+    workers: Any = None,
+    ready: Mapping[Path, Any] | None = None,
+) -> list[bytes]:
+    """Render and save every spec; PNG bytes in spec order. ``processes > 1``: this process
+    and ``processes - 1`` worker processes of :func:`hbench.bench.parallel.pool` share the
+    figures (a worker forked from this process, whose caches are warm, starts without importing
+    anything): each takes the costliest figure left whenever it is free (a thread of this
+    process hands the workers theirs), so that all finish together.
 
-    warm_up()  # import once in the parent: the forked workers inherit it
-    # the costliest first, so that the workers finish together
-    order = sorted(range(len(specs)), key=lambda i: -_COST.get(specs[i][1], 1))
-    with parallel.pool(min(processes, len(specs))) as pool:
-        done = list(pool.map(_render, [specs[i] for i in order]))
+    ``workers``, a pool of ``processes - 1`` workers of :func:`hbench.bench.parallel.pool`
+    already started (after :func:`warm_up`), takes the workers' figures in place of a pool
+    started here (left running); ``ready`` maps the stem of a spec already submitted to it
+    (:func:`submit`) to its future: that spec is not rendered again, its PNG bytes are the
+    future's, and the workers take figures of this batch once those are done."""
+    ready = dict(ready or {})
+    todo = [i for i, s in enumerate(specs) if s[0] is None or Path(s[0]) not in ready]
     out: list[bytes] = [b""] * len(specs)
-    for i, png in zip(order, done, strict=True):
-        out[i] = png
+    if workers is None and (processes <= 1 or len(todo) <= 1):
+        for i in todo:
+            out[i] = _render(specs[i])
+    elif todo:
+        warm_up()  # import once in the parent: the forked workers inherit it
+        todo.sort(key=lambda i: -_COST.get(specs[i][1], 1))
+        with contextlib.ExitStack() as stack:
+            _share(specs, todo, out, processes, workers, list(ready.values()), stack)
+    for i, spec in enumerate(specs):
+        if spec[0] is not None and Path(spec[0]) in ready:
+            out[i] = ready[Path(spec[0])].result()
     return out
 
 
-#: Relative rendering cost of the figures (load balancing of :func:`render_many`).
+def _share(
+    specs: Sequence[FigureSpec],
+    todo: list[int],
+    out: list[bytes],
+    processes: int,
+    workers: Any,
+    busy: list[Any],
+    stack: contextlib.ExitStack,
+) -> None:
+    """:func:`render_many`'s figures ``todo`` (costliest first) shared between this process and
+    the workers (``busy``: the workers' futures submitted before)."""
+    import concurrent.futures as cf
+    import threading
+    from collections import deque
+
+    slots = max(1, min(processes, len(todo) + 1) - 1)
+    left = deque(todo)
+    lock = threading.Lock()
+    futures: dict[int, Any] = {}
+
+    def take() -> int | None:
+        with lock:
+            return left.popleft() if left else None
+
+    if workers is None:  # started here, from this thread (a fork from a thread could copy
+        from hbench.bench import parallel  # a lock that another thread holds)
+
+        workers = stack.enter_context(parallel.pool(slots))
+        for _ in range(slots):
+            i = take()
+            if i is not None:
+                futures[i] = workers.submit(_render, specs[i])
+                busy.append(futures[i])
+
+    def feed() -> None:  # a worker's next figure as soon as it is free
+        running = {f for f in busy if not f.done()}
+        while True:
+            while len(running) >= slots:
+                done, _ = cf.wait(running, return_when=cf.FIRST_COMPLETED)
+                running -= done
+            i = take()
+            if i is None:
+                return
+            try:
+                futures[i] = workers.submit(_render, specs[i])
+            except BaseException:  # e.g. a broken pool: this process renders what is left
+                with lock:
+                    left.appendleft(i)
+                return
+            running.add(futures[i])
+
+    feeder = threading.Thread(target=feed, daemon=True)
+    feeder.start()
+    while (i := take()) is not None:
+        out[i] = _render(specs[i])
+    feeder.join()
+    while (i := take()) is not None:  # what the feeder gave back
+        out[i] = _render(specs[i])
+    for i, future in futures.items():
+        out[i] = future.result()
+
+
+def submit(workers: Any, spec: FigureSpec) -> Any:
+    """Render ``spec`` in ``workers`` (a pool of :func:`hbench.bench.parallel.pool`); its future
+    (the PNG bytes), for :func:`render_many`'s ``ready``."""
+    return workers.submit(_render, spec)
+
+
+#: Relative rendering cost of the figures, PNG and PDF (CPU seconds of the reproduction's
+#: defaults, in tenths): :func:`render_many` renders the costliest first.
 _COST = {
-    "xu_grid": 6,
-    "bias_std_vs_snr": 5,
+    "xu_grid": 8,
+    "bias_std_vs_snr": 8,
     "fitness_vs_snr": 3,
+    "ranking": 3,
+    "time_per_method": 2.5,
     "figure4": 2,
-    "figure5": 2,
+    "figure5": 2.5,
     "hit_rate_vs_snr": 2,
 }
 
