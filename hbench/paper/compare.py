@@ -11,7 +11,7 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from hbench.errors import InputError
-from hbench.paper.levels import Config
+from hbench.paper.levels import FITNESS_RUNS, Config
 from hbench.tables.published import (
     CSV_COLUMNS,
     Z_LIMIT,
@@ -55,7 +55,7 @@ def fitness_runs(values: Any, which: str = "all") -> Any:
         return np.where(v < 0.0, 0.0, v)
     if which == "nonnegative":
         return v[~(v < 0.0)]
-    raise InputError(f"fitness_runs must be one of all, clip0, nonnegative, got {which!r}")
+    raise InputError(f"fitness_runs must be one of {', '.join(FITNESS_RUNS)}, got {which!r}")
 
 
 def _stats(values: Any) -> tuple[float, float, int]:

@@ -229,17 +229,12 @@ def cell_name(sigma2: float) -> str:
 def run_level(task: LevelTask) -> tuple[Any, dict[str, Any], float]:
     """Rows (tidy), run 0's example and the wall time of one noise level."""
     from hbench.bench.runner import run_cell
-    from hbench.sim import scenarios
 
     t0 = time.perf_counter()
-    config = task.config
-    scenario = scenarios.build(scenario_spec(config, task.sigma2))
-    methods = make_methods(config, task.methods)
-    options = _options(scenario, config, task.structure)
-    seed = level_seed(task.seed, task.sigma2)
-    if config.custom_loop:
+    scenario, methods, seed, options = _level_inputs(task)
+    if task.config.custom_loop:
         rows = _custom_rows(
-            scenario, methods, task.runs, seed, options, config, cell_name(task.sigma2)
+            scenario, methods, task.runs, seed, options, task.config, cell_name(task.sigma2)
         )
         example: dict[str, Any] = {}
     else:
@@ -253,11 +248,32 @@ def run_level(task: LevelTask) -> tuple[Any, dict[str, Any], float]:
             keep_example=task.keep_example,
         )
         rows, example = res.rows, res.example
+    return rows, _labelled(example, task, scenario), time.perf_counter() - t0
+
+
+def _level_inputs(task: LevelTask) -> tuple[Any, dict[str, Any], Any, Any]:
+    """A level's scenario, methods, seed and identification options (:func:`run_level` and
+    :func:`run_level_part` compute from the same)."""
+    from hbench.sim import scenarios
+
+    config = task.config
+    scenario = scenarios.build(scenario_spec(config, task.sigma2))
+    methods = make_methods(config, task.methods)
+    return (
+        scenario,
+        methods,
+        level_seed(task.seed, task.sigma2),
+        _options(scenario, config, task.structure),
+    )
+
+
+def _labelled(example: dict[str, Any], task: LevelTask, scenario: Any) -> dict[str, Any]:
+    """A level's example (empty: none kept) with its cell, valve class and noise level."""
     if example:
         example.update(
             cell=cell_name(task.sigma2), nonlinearity=scenario.nonlinearity.name, sigma2=task.sigma2
         )
-    return rows, example, time.perf_counter() - t0
+    return example
 
 
 def _custom_rows(
@@ -404,25 +420,19 @@ def run_level_part(
     if task.config.custom_loop:
         return run_level(task)
     from hbench.bench.runner import cell_blocks, cell_work
-    from hbench.sim import scenarios
 
     t0 = time.perf_counter()
-    config = task.config
-    scenario = scenarios.build(scenario_spec(config, task.sigma2))
+    scenario, methods, seed, options = _level_inputs(task)
     work = cell_work(
         scenario,
-        make_methods(config, task.methods),
-        level_seed(task.seed, task.sigma2),
-        _options(scenario, config, task.structure),
+        methods,
+        seed,
+        options,
         cell=cell_name(task.sigma2),
         keep_example=task.keep_example,
     )
     blocks, example = cell_blocks(work, pieces)
-    if example:
-        example.update(
-            cell=cell_name(task.sigma2), nonlinearity=scenario.nonlinearity.name, sigma2=task.sigma2
-        )
-    return blocks, example, time.perf_counter() - t0
+    return blocks, _labelled(example, task, scenario), time.perf_counter() - t0
 
 
 def _joined(
