@@ -82,13 +82,14 @@ def fitnesses(
         mean_u = np.sum(u, axis=1) / n
         den = np.sqrt(np.sum(np.where(m, u - mean_u[:, None], 0.0) ** 2, axis=1))
     out = {}
+    if gain is not None:  # the estimate over the known gain (``"gain"``, ``"gain-centred"``)
+        with np.errstate(invalid="ignore", divide="ignore"):  # gain 0: -inf, as compiled
+            eg = e / np.broadcast_to(np.asarray(gain, float), (U.shape[0],))[:, None]
     for scaling in scalings:
         if scaling == "gain":
-            with np.errstate(invalid="ignore", divide="ignore"):  # gain 0: -inf, as compiled
-                us = e / np.broadcast_to(np.asarray(gain, float), (U.shape[0],))[:, None]
+            us = eg
         elif scaling == "gain-centred":
             with np.errstate(invalid="ignore", divide="ignore"):
-                eg = e / np.broadcast_to(np.asarray(gain, float), (U.shape[0],))[:, None]
                 shift = np.sum(np.where(m, eg - u, 0.0), axis=1) / n  # mean(e) over the mask
             us = eg - shift[:, None]
         elif scaling == "ls":

@@ -186,7 +186,8 @@ def reproduce(
 
         figures.warm_up()
 
-    drawn: list[Any] = []  # the example drawn; with jobs > 1, its figures' futures
+    drawn: list[float] = []  # the level whose example Figures 4 and 5 show
+    pending: list[Any] = []  # with jobs > 1, their futures
     early: dict[Path, Any] = {}  # the report's figures submitted early: stem -> future
     with contextlib.ExitStack() as stack:
         figure_workers: list[Any] = []  # a worker that draws while this process goes on
@@ -210,7 +211,7 @@ def reproduce(
             figures.warm_up()
             workers = stack.enter_context(parallel.pool(1))
             figure_workers.append(workers)
-            drawn.extend(figures.submit(workers, spec) for spec in specs)
+            pending.extend(figures.submit(workers, spec) for spec in specs)
             if report:
                 from hbench.report.build import xu_spec
 
@@ -241,7 +242,7 @@ def reproduce(
             figure_workers[0] if figure_workers else None,
             early,
         )
-        for future in drawn[1:]:  # Figures 4 and 5 written (or their error raised)
+        for future in pending:  # Figures 4 and 5 written (or their error raised)
             future.result()
     log(f"done in {time.perf_counter() - t_start:.1f} s")
     return out_dir

@@ -104,7 +104,12 @@ def render_many(
     already started (after :func:`warm_up`), takes the workers' figures in place of a pool
     started here (left running); ``ready`` maps the stem of a spec already submitted to it
     (:func:`submit`) to its future: that spec is not rendered again, its PNG bytes are the
-    future's, and the workers take figures of this batch once those are done."""
+    future's, and the workers take figures of this batch once those are done.
+
+    The hand-over by a feeder thread (:func:`_share`) is measured against the executor's own
+    queue (every figure submitted at once, this process cancelling and taking back the
+    cheapest still waiting) by ``benchmarks/bench_figures.py``: the queue lets a busy worker
+    hold a figure this process could have drawn."""
     ready = dict(ready or {})
     todo = [i for i, s in enumerate(specs) if s[0] is None or Path(s[0]) not in ready]
     out: list[bytes] = [b""] * len(specs)
