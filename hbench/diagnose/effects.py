@@ -39,6 +39,7 @@ import numpy as np
 
 from hbench.diagnose import classes, core, null, stats
 from hbench.diagnose import nominal as nm
+from hbench.errors import InputError, MethodError
 
 __all__ = ["BUILTIN", "Detection", "Effect"]
 
@@ -288,7 +289,17 @@ class Drift(Effect):
     Extension: a drift state, a ramp ``c t`` in the output: the ramp the residual shows is taken
     off ``y``, the nominal route runs again (a drift also distorts the blind inner signal, hence
     the class), and the ramp is fitted with the output scale and extrapolated over the
-    validation part.
+    validation part. The drift's random walk is a unit root in the output's noise, outside the
+    equation error ``e / A`` that the blind route's order selection assumes, and that selection
+    can take it for one pole near 1: on the paper loop's drift records it keeps ``na = 1`` (a
+    pole near 1) where the same records without the walk give the plant's two poles, and the
+    one-pole model, ramp or not, cannot simulate the slow plant. So when the route selects
+    fewer poles than the nominal family's largest order
+    (:data:`hbench.diagnose.nominal.NA_NOMINAL`), the blind model of that largest order is
+    fitted too (same route, order given), each with
+    the ramp, and the extension is the one with the smaller BIC of its simulation error over
+    the fit part (``n log(RSS / n) + (2 na + nb) log n``, :class:`Order`'s rule), so an order
+    the record does not support is not taken.
     """
 
     name = "drift"
@@ -375,9 +386,38 @@ class Drift(Effect):
         r = nom.resid[idx][SETTLE:]
         t = tb[idx][SETTLE:]
         slope = float(np.polyfit(t, r, 1)[0])
-        y_d = ctx.y - slope * tb
-        m = nm.fit_nominal(replace(ctx, y=y_d), **_nominal_kw(ctx, nom)).model
-        m = core.fit_output(m, ctx.x, ctx.y, idx, trend=1)
+        y_d = replace(ctx, y=ctx.y - slope * tb)
+        kw = _nominal_kw(ctx, nom)
+        cands = [nm.fit_nominal(y_d, **kw).model]
+        na = nm.NA_NOMINAL[1]
+        if ctx.p >= 2 and nom.estimate is not None and cands[0].lin.na < na:
+            # the drift's random walk misleads the blind order selection (module notes of
+            # the class): the nominal family's largest order competes on the fit part
+            try:
+                est = nm.identify_blind(
+                    y_d, kw["method"], na=na, na_range=(1, na), delay_multiple=kw["delay_multiple"]
+                )
+                cands.append(
+                    nm.blind_model(
+                        y_d,
+                        est,
+                        delay_multiple=kw["delay_multiple"],
+                        label="drift",
+                        candidates=kw["candidates"],
+                    )[0]
+                )
+            except (InputError, MethodError):
+                pass
+        n = idx.size
+        best: tuple[float, core.Model] | None = None
+        for cand in cands:
+            m = core.fit_output(cand, ctx.x, ctx.y, idx, trend=1)
+            rss = float(np.sum((ctx.y - m.simulate(ctx.x))[idx] ** 2))
+            bic = n * np.log(max(rss, 1e-300) / n) + (2 * m.lin.na + m.lin.nb) * np.log(n)
+            if best is None or bic < best[0]:
+                best = (bic, m)
+        assert best is not None
+        m = best[1]
         m.info["drift_slope"] = slope
         return m
 
