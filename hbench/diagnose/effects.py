@@ -152,6 +152,10 @@ class Effect:
         )
 
 
+#: The radius :func:`hbench.diagnose.core.stabilise` moves a root on or outside the unit
+#: circle to.
+STABLE_RADIUS = 0.999
+
 #: Fast samples skipped at the start of the fit part (the simulation starts from rest).
 SETTLE = 20
 
@@ -296,7 +300,9 @@ class Drift(Effect):
     one-pole model, ramp or not, cannot simulate the slow plant. So when the route selects
     fewer poles than the nominal family's largest order
     (:data:`hbench.diagnose.nominal.NA_NOMINAL`), the blind model of that largest order is
-    fitted too (same route, order given), each with
+    fitted too (same route, order given; not when a root of its fit lies on the radius that
+    :func:`hbench.diagnose.core.stabilise` moves a root on or outside the unit circle to,
+    :data:`STABLE_RADIUS`: that fit took the walk's unit root for a pole), each with
     the ramp, and the extension is the one with the smaller BIC of its simulation error over
     the fit part (``n log(RSS / n) + (2 na + nb) log n``, :class:`Order`'s rule), so an order
     the record does not support is not taken.
@@ -397,15 +403,17 @@ class Drift(Effect):
                 est = nm.identify_blind(
                     y_d, kw["method"], na=na, na_range=(1, na), delay_multiple=kw["delay_multiple"]
                 )
-                cands.append(
-                    nm.blind_model(
-                        y_d,
-                        est,
-                        delay_multiple=kw["delay_multiple"],
-                        label="drift",
-                        candidates=kw["candidates"],
-                    )[0]
-                )
+                m = nm.blind_model(
+                    y_d,
+                    est,
+                    delay_multiple=kw["delay_multiple"],
+                    label="drift",
+                    candidates=kw["candidates"],
+                )[0]
+                # a pole on the stabilisation radius: the fit put a root on or outside the
+                # unit circle, the walk's unit root taken for the plant's: not a candidate
+                if float(np.max(np.abs(np.roots(m.lin.a)))) < STABLE_RADIUS - 1e-9:
+                    cands.append(m)
             except (InputError, MethodError):
                 pass
         n = idx.size
