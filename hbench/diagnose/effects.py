@@ -397,8 +397,8 @@ class Drift(Effect):
         cands = [nm.fit_nominal(y_d, **kw).model]
         na = nm.NA_NOMINAL[1]
         if ctx.p >= 2 and nom.estimate is not None and cands[0].lin.na < na:
-            # the drift's random walk misleads the blind order selection (module notes of
-            # the class): the nominal family's largest order competes on the fit part
+            # the drift's random walk misleads the blind order selection (the class's notes):
+            # the nominal family's largest order competes on the fit part
             try:
                 est = nm.identify_blind(
                     y_d, kw["method"], na=na, na_range=(1, na), delay_multiple=kw["delay_multiple"]
