@@ -1,14 +1,9 @@
 """The ``order`` effect (:class:`hbench.diagnose.effects.Order`): a missing pole is detected and
-its extension recovers the lost fit; a record of the nominal order is not called ``order``;
-and the parsimony rule between a delay and one more pole (:data:`hbench.diagnose.validate.
-PARSIMONY`)."""
+its extension recovers the lost fit; a record of the nominal order is not called ``order``."""
 
 from __future__ import annotations
 
 import dataclasses
-
-import numpy as np
-import pytest
 
 from hbench.diagnose import benchmark_cases as bc
 from hbench.diagnose import validate
@@ -40,24 +35,3 @@ def test_a_record_of_the_nominal_order_is_not_called_order() -> None:
     d = validate.diagnose(_low_noise_record("none"), extend_all=True)
     assert d.cause != "order"
     assert d.extensions["order"].val_fit - d.baseline_fit < validate.MIN_GAIN["validation"]
-
-
-def _ext(name: str, gain: float) -> validate.Extension:
-    return validate.Extension(name, object(), gain)  # type: ignore[arg-type]
-
-
-@pytest.mark.parametrize(
-    ("delay_gain", "expected"), [(9.5, "delay"), (9.0, "delay"), (8.5, "order"), (None, "order")]
-)
-def test_a_delay_that_gains_nine_tenths_of_the_order_extension_is_named(
-    delay_gain: float | None, expected: str
-) -> None:
-    """Against one more pole gaining 10 points, the delay is named from 90 % of that gain on;
-    a delay gaining less, or none, leaves ``order``."""
-    exts = {"order": _ext("order", 10.0)}
-    if delay_gain is not None:
-        exts["delay"] = _ext("delay", delay_gain)
-    best = validate.choose_extension(list(exts.values()), exts, 0.0, 2.0)
-    assert best is not None and best.name == expected
-    assert ("delay", "order", 0.9) in validate.PARSIMONY
-    assert np.isfinite(best.val_fit)

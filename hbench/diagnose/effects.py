@@ -757,20 +757,11 @@ class Order(Effect):
                     ctx.y,
                     ctx.fit_idx,
                 )
-            cands = [cand_m]
-            if ctx.p >= 2:
-                # the same order by output error from the nominal's inner signal: the blind
-                # method's higher-order estimate is poorly conditioned when the poles crowd
-                # near 1 (a slow lag added to a slow plant at the fast rate)
-                nb = max(nom.model.lin.nb, 1) + 1
-                oe = nm.refit_linear(nom.model, ctx, ctx.fit_idx, na=na, nb=nb)
-                cands.append(core.fit_output(oe, ctx.x, ctx.y, ctx.fit_idx))
-            for cand in cands:
-                rss = float(np.sum((ctx.y - cand.simulate(ctx.x))[ctx.fit_idx] ** 2))
-                k = 2 * cand.lin.na + cand.lin.nb
-                bic = n * np.log(max(rss, 1e-300) / n) + k * np.log(n)
-                if best is None or bic < best[0]:
-                    best = (bic, cand)
+            rss = float(np.sum((ctx.y - cand_m.simulate(ctx.x))[ctx.fit_idx] ** 2))
+            k = 2 * cand_m.lin.na + cand_m.lin.nb
+            bic = n * np.log(max(rss, 1e-300) / n) + k * np.log(n)
+            if best is None or bic < best[0]:
+                best = (bic, cand_m)
         assert best is not None
         return best[1]
 
