@@ -7,12 +7,13 @@ import dataclasses
 
 from hbench.diagnose import benchmark_cases as bc
 from hbench.diagnose import validate
+from hbench.sim.records import Record
 
 #: A seed outside the benchmark's calibration and held-out ranges.
 SEED = 4321
 
 
-def _low_noise_record(effect: str) -> object:
+def _low_noise_record(effect: str) -> Record:
     """The paper loop (linear valve) with ``effect``, its process noise 100 times below the
     benchmark's lowest level."""
     case = bc.draw_bench_case(SEED, effect, "linear", "paper")
