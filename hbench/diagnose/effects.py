@@ -178,6 +178,31 @@ def _u_fast(model: core.Model, ctx: nm.Context) -> np.ndarray:
     return np.repeat(model.inner(ctx.x), ctx.p)
 
 
+def _blind_model_of(ctx: nm.Context, kw: dict[str, Any], est: Any, label: str) -> core.Model:
+    """The nominal route's model (:func:`hbench.diagnose.nominal.blind_model`) of the blind
+    estimate ``est``, with the nominal's options ``kw`` (:func:`_nominal_kw`)."""
+    return nm.blind_model(
+        ctx, est, delay_multiple=kw["delay_multiple"], label=label, candidates=kw["candidates"]
+    )[0]
+
+
+def _blind_of_order(ctx: nm.Context, kw: dict[str, Any], na: int, label: str) -> core.Model:
+    """The nominal route with ``na`` poles given (the blind method's selection over
+    ``1 .. na`` held at ``na``)."""
+    est = nm.identify_blind(
+        ctx, kw["method"], na=na, na_range=(1, na), delay_multiple=kw["delay_multiple"]
+    )
+    return _blind_model_of(ctx, kw, est, label)
+
+
+def _simulation_bic(ctx: nm.Context, m: core.Model) -> float:
+    """BIC of ``m``'s simulation error over the fit part, ``n log(RSS / n) + (2 na + nb) log n``
+    (the order and drift extensions choose among their candidates by it)."""
+    n = ctx.fit_idx.size
+    rss = float(np.sum((ctx.y - m.simulate(ctx.x))[ctx.fit_idx] ** 2))
+    return float(n * np.log(max(rss, 1e-300) / n) + (2 * m.lin.na + m.lin.nb) * np.log(n))
+
+
 # --------------------------------------------------------------------------- colored noise
 
 
@@ -400,32 +425,17 @@ class Drift(Effect):
             # the drift's random walk misleads the blind order selection (the class's notes):
             # the nominal family's largest order competes on the fit part
             try:
-                est = nm.identify_blind(
-                    y_d, kw["method"], na=na, na_range=(1, na), delay_multiple=kw["delay_multiple"]
-                )
-                m = nm.blind_model(
-                    y_d,
-                    est,
-                    delay_multiple=kw["delay_multiple"],
-                    label="drift",
-                    candidates=kw["candidates"],
-                )[0]
+                m = _blind_of_order(y_d, kw, na, "drift")
                 # a pole on the stabilisation radius: the fit put a root on or outside the
                 # unit circle, the walk's unit root taken for the plant's: not a candidate
                 if float(np.max(np.abs(np.roots(m.lin.a)))) < STABLE_RADIUS - 1e-9:
                     cands.append(m)
             except (InputError, MethodError):
                 pass
-        n = idx.size
-        best: tuple[float, core.Model] | None = None
-        for cand in cands:
-            m = core.fit_output(cand, ctx.x, ctx.y, idx, trend=1)
-            rss = float(np.sum((ctx.y - m.simulate(ctx.x))[idx] ** 2))
-            bic = n * np.log(max(rss, 1e-300) / n) + (2 * m.lin.na + m.lin.nb) * np.log(n)
-            if best is None or bic < best[0]:
-                best = (bic, m)
-        assert best is not None
-        m = best[1]
+        m = min(
+            (core.fit_output(cand, ctx.x, ctx.y, idx, trend=1) for cand in cands),
+            key=lambda fitted: _simulation_bic(ctx, fitted),
+        )
         m.info["drift_slope"] = slope
         return m
 
@@ -766,7 +776,6 @@ class Order(Effect):
 
     def extend(self, ctx: nm.Context, nom: nm.Nominal, det: Detection) -> core.Model:
         na0 = int(det.info["na0"])
-        n = ctx.n_fit
         kw = _nominal_kw(ctx, nom)
         best: tuple[float, core.Model] | None = None
         for na in (na0 + 1, na0 + 2):
@@ -782,13 +791,7 @@ class Order(Effect):
                 except Exception:
                     est = None
                 if est is not None:
-                    cand_m = nm.blind_model(
-                        ctx,
-                        est,
-                        delay_multiple=kw["delay_multiple"],
-                        label="order",
-                        candidates=kw["candidates"],
-                    )[0]
+                    cand_m = _blind_model_of(ctx, kw, est, "order")
                 else:
                     cand_m = core.fit_output(
                         nm.refit_linear(
@@ -805,9 +808,7 @@ class Order(Effect):
                     ctx.y,
                     ctx.fit_idx,
                 )
-            rss = float(np.sum((ctx.y - cand_m.simulate(ctx.x))[ctx.fit_idx] ** 2))
-            k = 2 * cand_m.lin.na + cand_m.lin.nb
-            bic = n * np.log(max(rss, 1e-300) / n) + k * np.log(n)
+            bic = _simulation_bic(ctx, cand_m)
             if best is None or bic < best[0]:
                 best = (bic, cand_m)
         assert best is not None
