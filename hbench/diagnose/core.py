@@ -183,18 +183,23 @@ def scale_of(x: np.ndarray) -> float:
 # --------------------------------------------------------------------------- linear dynamics
 
 
+#: The largest root radius :func:`stabilise` leaves: a root beyond it is moved onto it.
+STABLE_RADIUS = 0.999
+
+
 def stabilise(a: np.ndarray) -> np.ndarray:
-    """``[1, a1, ...]`` with roots outside the unit circle reflected inside (radius <= 0.999)."""
+    """``[1, a1, ...]`` with roots outside the unit circle reflected inside (radius <=
+    :data:`STABLE_RADIUS`)."""
     a = np.asarray(a, float)
     if a.size <= 1:
         return a
     r = np.roots(a)
     mag = np.abs(r)
-    if np.all(mag < 0.999):
+    if np.all(mag < STABLE_RADIUS):
         return a
     r = np.where(mag > 1, 1 / np.conj(r), r)
     mag = np.abs(r)
-    r = np.where(mag > 0.999, r * 0.999 / np.maximum(mag, 1e-300), r)
+    r = np.where(mag > STABLE_RADIUS, r * STABLE_RADIUS / np.maximum(mag, 1e-300), r)
     return np.real(np.poly(r))
 
 

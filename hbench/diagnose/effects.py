@@ -152,10 +152,6 @@ class Effect:
         )
 
 
-#: The radius :func:`hbench.diagnose.core.stabilise` moves a root on or outside the unit
-#: circle to.
-STABLE_RADIUS = 0.999
-
 #: Fast samples skipped at the start of the fit part (the simulation starts from rest).
 SETTLE = 20
 
@@ -327,10 +323,10 @@ class Drift(Effect):
     (:data:`hbench.diagnose.nominal.NA_NOMINAL`), the blind model of that largest order is
     fitted too (same route, order given; not when a root of its fit lies on the radius that
     :func:`hbench.diagnose.core.stabilise` moves a root on or outside the unit circle to,
-    :data:`STABLE_RADIUS`: that fit took the walk's unit root for a pole), each with
-    the ramp, and the extension is the one with the smaller BIC of its simulation error over
-    the fit part (``n log(RSS / n) + (2 na + nb) log n``, :class:`Order`'s rule), so an order
-    the record does not support is not taken.
+    :data:`hbench.diagnose.core.STABLE_RADIUS`: that fit took the walk's unit root for a
+    pole), each with the ramp, and the extension is the one with the smaller BIC of its
+    simulation error over the fit part (``n log(RSS / n) + (2 na + nb) log n``,
+    :class:`Order`'s rule), so an order the record does not support is not taken.
     """
 
     name = "drift"
@@ -428,7 +424,7 @@ class Drift(Effect):
                 m = _blind_of_order(y_d, kw, na, "drift")
                 # a pole on the stabilisation radius: the fit put a root on or outside the
                 # unit circle, the walk's unit root taken for the plant's: not a candidate
-                if float(np.max(np.abs(np.roots(m.lin.a)))) < STABLE_RADIUS - 1e-9:
+                if float(np.max(np.abs(np.roots(m.lin.a)))) < core.STABLE_RADIUS - 1e-9:
                     cands.append(m)
             except (InputError, MethodError):
                 pass
