@@ -753,9 +753,13 @@ def hammerstein_pem(
     label: str = "pem",
 ) -> tuple[core.Model, dict[str, classes.ClassFit], str]:
     """Every class fitted through the dynamics on ``idx`` (non-blind: from ``x`` to ``y``), with
-    ``model``'s orders and delay, by output error or, with ``prefilter`` ``D``, by prediction
-    error with the noise model ``1 / D``; the class chosen by BIC as on the graph
+    ``model``'s orders and delay, by output error (``prefilter`` None: the FIR ``D = 1``) or,
+    with ``prefilter`` ``D``, by prediction error with the noise model ``1 / D``; the linear
+    part is re-fitted for every class (``linear`` too), and a memory actuator's start state
+    re-chosen on the simulation (:func:`reanchor`); the class chosen by BIC as on the graph
     (:func:`choose_graph`). Returns the chosen model (output scale fitted, unfiltered)."""
+    if prefilter is None:
+        prefilter = np.ones(1)
     lin_m = model.lin
     nb = max(lin_m.nb, 1)
     oe0 = core.OEFit(lin=lin_m, offset=0.0, yhat=np.zeros(ctx.N), rss=np.inf, n=idx.size)
@@ -793,8 +797,7 @@ def hammerstein_pem(
         label=label,
         info={**model.info, "noise": "output-error", "class_fits": fits},
     )
-    if prefilter is not None:
-        m = reanchor(m, ctx, idx)
+    m = reanchor(m, ctx, idx)
     return core.fit_output(m, ctx.x, ctx.y, idx), fits, chosen
 
 

@@ -27,6 +27,64 @@ def ljung_box(e: np.ndarray, nlags: int = 20) -> tuple[float, float]:
     return q, float(stats.chi2.sf(q, nlags))
 
 
+def _lags(z: np.ndarray, lags: range) -> np.ndarray:
+    """Columns ``z(t - k)`` for ``k`` in ``lags`` (zeros before the start)."""
+    return np.stack([np.concatenate([np.zeros(k), z[: z.size - k]]) for k in lags], axis=1)
+
+
+def granger(r: np.ndarray, u: np.ndarray, k: int, m: int, start: int) -> dict[str, float]:
+    """Granger-style regressions of a residual ``r(t)`` on its own past and on an input's past.
+
+    Three least-squares fits on the samples ``start ..`` (``start >= max(k, m)``), each with a
+    constant: ``full`` on ``r(t - 1 .. t - k)`` and ``u(t - 1 .. t - m)``, ``own`` on the
+    residual's past alone, ``input`` on the input's past alone. Returned:
+
+    * ``input_share``: the share (%) of what the residual's own past leaves that the input's
+      past explains, ``100 (RSS_own - RSS_full) / RSS_own`` (a partial R^2), with its F
+      statistic ``((RSS_own - RSS_full) / m) / (RSS_full / dof)``, ``dof = n - 1 - k - m``,
+      and p-value from ``F(m, dof)`` (``input_f``, ``input_p``);
+    * ``own_share``, ``own_f``, ``own_p``: the same for the residual's own past given the
+      input's (``F(k, dof)``).
+
+    With Gaussian white regression errors the two F statistics have those F distributions
+    exactly when the regressors are fixed, and asymptotically for lagged regressors. In a
+    closed loop the input's past is a function of the past noise (through the controller), so
+    the plain cross-correlation of ``r`` and ``u`` is no test of the dynamics; conditioning on
+    the residual's own past (which whitens a residual that is noise with a stable, invertible
+    model of order up to ``k``) leaves the input terms without explanatory power exactly when
+    the residual is such noise.
+    """
+    r = np.asarray(r, float)
+    u = np.asarray(u, float)
+    n = r.size
+    R = _lags(r, range(1, k + 1))
+    U = _lags(u, range(1, m + 1))
+    one = np.ones((n, 1))
+    y = r[start:]
+
+    def rss(X: np.ndarray) -> float:
+        X = X[start:]
+        th = np.linalg.lstsq(X, y, rcond=None)[0]
+        e = y - X @ th
+        return float(e @ e)
+
+    full = rss(np.hstack([one, R, U]))
+    own = rss(np.hstack([one, R]))
+    inp = rss(np.hstack([one, U]))
+    dof = max(y.size - 1 - k - m, 1)
+    scale = max(full, 1e-300) / dof
+    f_in = ((own - full) / m) / scale
+    f_own = ((inp - full) / k) / scale
+    return {
+        "input_share": 100.0 * (own - full) / own if own > 0 else 0.0,
+        "input_f": float(f_in),
+        "input_p": f_pvalue(f_in, m, dof),
+        "own_share": 100.0 * (inp - full) / inp if inp > 0 else 0.0,
+        "own_f": float(f_own),
+        "own_p": f_pvalue(f_own, k, dof),
+    }
+
+
 def periodogram(e: np.ndarray) -> np.ndarray:
     """``|DFT|^2 / n`` of the mean-removed series at bins ``0 .. n//2`` (along the last axis)."""
     e = np.asarray(e, float)

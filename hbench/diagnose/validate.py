@@ -31,10 +31,12 @@ nominal model leaves on the fit part, and every effect's extension is fitted (``
 default for ``p >= 2``) or only the fired detectors' (``detectors``, the default for a plant log).
 Under ``validation`` the candidates are the fired effects whose extension gains at least
 ``MIN_GAIN["validation"]`` points of validation fit, and any effect whose extension gains at
-least :data:`MIN_GAIN_UNDETECTED` (a gain its detector missed); under ``detectors``, the fired
-effects gaining ``MIN_GAIN["detectors"]``. The cause is the candidate that gains the most (with
-one parsimony rule, :data:`PARSIMONY`: a noise model that gains nearly as much as one more pole
-is preferred to it). With no candidate: ``none`` when the nominal model explains the
+least :data:`MIN_GAIN_UNDETECTED` (a gain its detector missed) except those of
+:data:`DETECTED_ONLY` (``colored-noise``, whose output-error refit gains on most records: it
+needs its detector); under ``detectors``, the fired effects gaining ``MIN_GAIN["detectors"]``.
+The cause is the candidate that gains the most (with one parsimony rule, :data:`PARSIMONY`: a
+noise model among the candidates that gains nearly as much as one more pole is preferred to
+it). With no candidate: ``none`` when the nominal model explains the
 validation part better than its mean (fit above :data:`NONE_MIN_FIT`), else ``unexplained``;
 under ``detectors`` also ``unexplained`` when a detector fired but no extension gained.
 ``extended_fit`` is the cause's extended model's fit (the nominal's for ``none`` and
@@ -79,6 +81,11 @@ MIN_GAIN: dict[str, float] = {"validation": 2.0, "detectors": 0.5}
 #: ``validation`` rule: an extension whose detector stayed quiet is a candidate when it gains
 #: at least this many points (a gain the detector missed).
 MIN_GAIN_UNDETECTED = 20.0
+#: Effects that are candidates only when their detector fired (never through
+#: :data:`MIN_GAIN_UNDETECTED`): the colored-noise extension re-fits the nominal's dynamics by
+#: output error, which gains on most records whose blind nominal simulates worse than an
+#: output-error fit, whatever their effect; its gain alone is no evidence of coloured noise.
+DETECTED_ONLY: tuple[str, ...] = ("colored-noise",)
 #: ``none`` needs a nominal validation fit above this (%): better than the validation mean.
 #: Not tuned; no nominal calibration record (seeds 5000-5199) has a fit below 43 %.
 NONE_MIN_FIT = 0.0
@@ -507,16 +514,18 @@ def choose_extension(
     pool: list[Extension], extensions: dict[str, Extension], base: float, min_gain: float
 ) -> Extension | None:
     """The extension of ``pool`` whose validation fit beats ``base`` the most, by at least
-    ``min_gain`` points (the :data:`PARSIMONY` rule applied: a simpler extension from
-    ``extensions`` that gains nearly as much as the richer one wins); ``None`` when none does."""
+    ``min_gain`` points (the :data:`PARSIMONY` rule applied: a simpler extension of ``pool``
+    that gains nearly as much as the richer one wins); ``None`` when none does."""
     ok = [e for e in pool if e.model is not None and np.isfinite(e.val_fit)]
     if not ok:
         return None
     best = max(ok, key=lambda e: e.val_fit)
+    names = {e.name for e in ok}
     for simple, rich, share in PARSIMONY:
         alt = extensions.get(simple)
         if (
             best.name == rich
+            and simple in names
             and alt is not None
             and alt.model is not None
             and np.isfinite(alt.val_fit)
@@ -627,7 +636,9 @@ def _diagnose(
         pool = [e for e in pool if e.val_fit - base >= min_gain] + [
             e
             for e in extensions.values()
-            if e.name not in names and e.val_fit - base >= MIN_GAIN_UNDETECTED
+            if e.name not in names
+            and e.name not in DETECTED_ONLY
+            and e.val_fit - base >= MIN_GAIN_UNDETECTED
         ]
     best = choose_extension(pool, extensions, base, min_gain)
     cause, extended, ext_fit, ext_fits = "none", nominal.model, base, base_fits
