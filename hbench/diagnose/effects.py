@@ -234,8 +234,10 @@ class ColoredNoise(Effect):
     * **the nominal's dynamics are biased**: the output-error refit of the dynamics and of the
       nominal class's parameters (:func:`hbench.diagnose.nominal.hammerstein_pem`, the
       extension's model) lowers the simulation residual's power on the fit part by more
-      than :attr:`DROP` %. Under the nominal's noise both estimates are consistent and the
-      drop is small.
+      than :attr:`DROP` %. Under the nominal's noise the two estimates differ little (the
+      drop was below 10 % on 16 of the 24 calibration records without an effect, above 15 %
+      on 22 of the 24 with coloured noise); all but one of the larger drops there come with a
+      large input share.
 
     Statistic: ``min(drop / DROP, INPUT_SHARE / input share)``: above 1 exactly when the
     first and third conditions hold; the detector fires when it is and the own-past p-value
@@ -281,14 +283,13 @@ class ColoredNoise(Effect):
         r = _fit(ctx, nom, nom.resid)
         u = _fit(ctx, nom, _u_fast(nom.model, ctx))
         m_lags = self.INPUT_LAGS + int(nom.model.lin.delay)
-        g = stats.granger(
-            r - r.mean(), u - u.mean(), self.AR_LAGS, m_lags, 3 * self.INPUT_LAGS
-        )
+        start = max(3 * self.INPUT_LAGS, m_lags, self.AR_LAGS)
+        g = stats.granger(r - r.mean(), u - u.mean(), self.AR_LAGS, m_lags, start)
         try:
             ro = _fit(ctx, nom, ctx.y - self.refit(ctx, nom).simulate(ctx.x))
             drop = 100.0 * (1.0 - float(ro @ ro) / max(float(r @ r), 1e-300))
         except Exception as exc:  # no refit: no evidence of a bias
-            drop, ro = 0.0, None
+            drop = 0.0
             nom.cache["oe_refit_error"] = f"{type(exc).__name__}: {exc}"
         share = max(g["input_share"], 1e-12)
         stat = min(drop / self.DROP, self.INPUT_SHARE / share)
