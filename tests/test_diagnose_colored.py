@@ -9,7 +9,7 @@ import pytest
 from scipy import signal
 
 from hbench.diagnose import benchmark_cases as bc
-from hbench.diagnose import core, nominal, stats, validate
+from hbench.diagnose import core, generator, nominal, stats, validate
 from hbench.diagnose.effects import ColoredNoise, Detection, Effect
 
 # --------------------------------------------------------------------------- the Granger test
@@ -93,9 +93,27 @@ def test_detector_fires_on_box_jenkins_noise_of_the_paper_loop() -> None:
     with core.transient(True), np.errstate(all="ignore"):
         det = ColoredNoise().detect(ctx, nom)
     assert det.fired, det.evidence
+    assert det.info["route"] == "bias"
     assert det.info["input_share"] < ColoredNoise.INPUT_SHARE
     assert det.info["drop"] > 3 * ColoredNoise.DROP
     assert det.p_value < 0.01
+
+
+def test_the_whiteness_route_fires_on_the_design_generators_coloured_equation_noise() -> None:
+    """The design generator's coloured record of seed 1 (a fast loop, backlash valve, equation
+    noise ``(1 + c1 q^-1) / ((1 - d1 q^-1) A) e``): the bias route is quiet (past inputs explain
+    the nominal residual far beyond the level), the whiteness route fires and the detector
+    reports it."""
+    (case,) = [c for c in generator.cases_per_effect(3, 0) if c.seed == 1]
+    assert case.effect == "colored-noise"
+    rec = generator.simulate_case(case)
+    with core.transient(True), np.errstate(all="ignore"):
+        ctx = nominal.make_context(rec)
+        det = ColoredNoise().detect(ctx, nominal.fit_nominal(ctx))
+    assert det.fired, det.evidence
+    assert det.info["route"] == "whiteness"
+    assert det.info["input_share"] > 5 * ColoredNoise.INPUT_SHARE
+    assert det.info["whiteness"] > det.info["bias"]
 
 
 @pytest.mark.parametrize(

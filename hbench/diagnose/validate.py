@@ -32,12 +32,12 @@ default for ``p >= 2``) or only the fired detectors' (``detectors``, the default
 Under ``validation`` the candidates are the fired effects whose extension gains at least
 ``MIN_GAIN["validation"]`` points of validation fit, and any effect whose extension gains at
 least :data:`MIN_GAIN_UNDETECTED` (a gain its detector missed) except those of
-:data:`DETECTED_ONLY` (``colored-noise``, whose output-error refit gains on most records: it
-needs its detector); under ``detectors``, the fired effects gaining ``MIN_GAIN["detectors"]``.
+:data:`DETECTED_ONLY` (``colored-noise``, whose refit of the dynamics gains on many records:
+it needs its detector); under ``detectors``, the fired effects gaining ``MIN_GAIN["detectors"]``.
 The cause is the candidate that gains the most (with one parsimony rule, :data:`PARSIMONY`: a
-noise model among the candidates that gains nearly as much as one more pole is preferred to
-it). With no candidate: ``none`` when the nominal model explains the
-validation part better than its mean (fit above :data:`NONE_MIN_FIT`), else ``unexplained``;
+noise model that gains nearly as much as one more pole is preferred to it). With no candidate:
+``none`` when the nominal model explains the validation part better than its mean (fit above
+:data:`NONE_MIN_FIT`), else ``unexplained``;
 under ``detectors`` also ``unexplained`` when a detector fired but no extension gained.
 ``extended_fit`` is the cause's extended model's fit (the nominal's for ``none`` and
 ``unexplained``) and ``gain = extended_fit - baseline_fit``.
@@ -82,9 +82,9 @@ MIN_GAIN: dict[str, float] = {"validation": 2.0, "detectors": 0.5}
 #: at least this many points (a gain the detector missed).
 MIN_GAIN_UNDETECTED = 20.0
 #: Effects that are candidates only when their detector fired (never through
-#: :data:`MIN_GAIN_UNDETECTED`): the colored-noise extension re-fits the nominal's dynamics by
-#: output error, which gains on most records whose blind nominal simulates worse than an
-#: output-error fit, whatever their effect; its gain alone is no evidence of coloured noise.
+#: :data:`MIN_GAIN_UNDETECTED`): the colored-noise extensions re-fit the nominal's dynamics
+#: from ``x`` to ``y``, which gains on many records whose blind nominal simulates worse than
+#: such a fit, whatever their effect; its gain alone is no evidence of coloured noise.
 DETECTED_ONLY: tuple[str, ...] = ("colored-noise",)
 #: ``none`` needs a nominal validation fit above this (%): better than the validation mean.
 #: Not tuned; no nominal calibration record (seeds 5000-5199) has a fit below 43 %.
@@ -514,18 +514,16 @@ def choose_extension(
     pool: list[Extension], extensions: dict[str, Extension], base: float, min_gain: float
 ) -> Extension | None:
     """The extension of ``pool`` whose validation fit beats ``base`` the most, by at least
-    ``min_gain`` points (the :data:`PARSIMONY` rule applied: a simpler extension of ``pool``
-    that gains nearly as much as the richer one wins); ``None`` when none does."""
+    ``min_gain`` points (the :data:`PARSIMONY` rule applied: a simpler extension from
+    ``extensions`` that gains nearly as much as the richer one wins); ``None`` when none does."""
     ok = [e for e in pool if e.model is not None and np.isfinite(e.val_fit)]
     if not ok:
         return None
     best = max(ok, key=lambda e: e.val_fit)
-    names = {e.name for e in ok}
     for simple, rich, share in PARSIMONY:
         alt = extensions.get(simple)
         if (
             best.name == rich
-            and simple in names
             and alt is not None
             and alt.model is not None
             and np.isfinite(alt.val_fit)
