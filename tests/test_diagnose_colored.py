@@ -10,7 +10,7 @@ from scipy import signal
 
 from hbench.diagnose import benchmark_cases as bc
 from hbench.diagnose import core, generator, nominal, stats, validate
-from hbench.diagnose.effects import ColoredNoise, Detection, Effect
+from hbench.diagnose.effects import ColoredNoise, Detection, Effect, format_p
 
 # --------------------------------------------------------------------------- the Granger test
 
@@ -96,7 +96,9 @@ def test_detector_fires_on_box_jenkins_noise_of_the_paper_loop() -> None:
     assert det.info["route"] == "bias"
     assert det.info["input_share"] < ColoredNoise.INPUT_SHARE
     assert det.info["drop"] > 3 * ColoredNoise.DROP
-    assert det.p_value < 0.01
+    # the verdict's p-value is the bias route's own-past F-test's, the one printed with it
+    assert det.p_value == det.info["own_p"]
+    assert f"the route's p-value {format_p(det.p_value)}" in det.evidence
 
 
 def test_the_whiteness_route_fires_on_the_design_generators_coloured_equation_noise() -> None:
@@ -134,6 +136,11 @@ def test_detector_is_quiet_on_nominal_noise_and_a_missing_pole(
     with core.transient(True), np.errstate(all="ignore"):
         det = ColoredNoise().detect(ctx, nom)
     assert not det.fired, det.evidence
+    assert det.info["refit_error"] == ""  # quiet with the refit made, not for want of it
+    if effect == "order":  # past inputs explain the residual: dynamics, not noise
+        assert det.info["input_share"] > ColoredNoise.INPUT_SHARE
+    else:  # the refit hardly moves the simulation
+        assert det.info["drop"] < ColoredNoise.DROP
 
 
 # --------------------------------------------------------------------------- the cause rule
@@ -149,7 +156,7 @@ class _Refit(Effect):
         return self._det(0.0, 1.0, "never")
 
     def extend(self, ctx: nominal.Context, nom: nominal.Nominal, det: Detection) -> core.Model:
-        return ColoredNoise().refit(ctx, nom)
+        return ColoredNoise().oe_refit(ctx, nom)
 
 
 class _QuietColoured(_Refit):
@@ -177,3 +184,59 @@ def test_a_quiet_colored_noise_detector_is_never_the_cause_by_its_gain_alone() -
         other.extensions["order"].val_fit
     )
     assert coloured.cause == "none"
+
+
+# --------------------------------------------------------------------------- the route choice
+
+
+@pytest.mark.parametrize(
+    ("bias", "whiteness", "route", "fired"),
+    [
+        ((3.0, 1e-6), (5.0, 1e-9), "bias", True),  # both fire: the bias route
+        ((3.0, 0.5), (2.0, 1e-9), "whiteness", True),  # bias large but not significant
+        ((0.2, 1e-9), (2.0, 1e-9), "whiteness", True),
+        ((0.5, 1e-9), (0.3, 1e-9), "bias", False),  # neither fires: the larger statistic
+        ((0.3, 1e-9), (0.5, 1e-9), "whiteness", False),
+        ((float("nan"), float("nan")), (0.5, 1e-9), "bias", False),  # nan: quiet, no evidence
+    ],
+)
+def test_the_detector_reports_the_route_that_fires_with_its_own_p_value(
+    monkeypatch: pytest.MonkeyPatch,
+    bias: tuple[float, float],
+    whiteness: tuple[float, float],
+    route: str,
+    fired: bool,
+) -> None:
+    """The reported statistic and p-value are one route's, so the verdict agrees with the
+    p-value printed beside it."""
+    info = {"input_share": 1.0, "drop": 20.0, "own_p": bias[1], "refit_error": ""}
+    monkeypatch.setattr(ColoredNoise, "_bias", lambda self, c, n: (*bias, "b", info))
+    monkeypatch.setattr(ColoredNoise, "_whiteness", lambda self, c, n: (*whiteness, "w"))
+    det = ColoredNoise().detect(None, None)  # type: ignore[arg-type]
+    assert det.info["route"] == route
+    assert det.fired is fired
+    stat, p = bias if route == "bias" else whiteness
+    assert det.statistic == stat or (np.isnan(stat) and np.isnan(det.statistic))
+    assert det.p_value == p or (np.isnan(p) and np.isnan(det.p_value))
+    assert det.evidence.startswith(f"reported: the {route} route")
+
+
+def test_granger_refuses_a_start_before_its_lags() -> None:
+    r = np.zeros(100)
+    with pytest.raises(ValueError, match="start"):
+        stats.granger(r, r, 8, 20, 10)
+
+
+@pytest.mark.parametrize(("coloured_gain", "cause"), [(9.0, "colored-noise"), (7.0, "order")])
+def test_parsimony_weighs_a_quiet_colored_noise_extension_against_one_more_pole(
+    coloured_gain: float, cause: str
+) -> None:
+    """``colored-noise`` is not a candidate with a quiet detector, but the parsimony rule
+    (:data:`~hbench.diagnose.validate.PARSIMONY`, share 0.8) prefers its noise model to the
+    candidate ``order`` when it gains at least 0.8 of that pole's gain."""
+    model = core.Model.__new__(core.Model)  # only "not None" matters to the rule
+    order = validate.Extension("order", model, 50.0 + 10.0)
+    coloured = validate.Extension("colored-noise", model, 50.0 + coloured_gain)
+    extensions = {"order": order, "colored-noise": coloured}
+    best = validate.choose_extension([order], extensions, 50.0, 2.0)
+    assert best is not None and best.name == cause

@@ -35,8 +35,9 @@ def _lags(z: np.ndarray, lags: range) -> np.ndarray:
 def granger(r: np.ndarray, u: np.ndarray, k: int, m: int, start: int) -> dict[str, float]:
     """Granger-style regressions of a residual ``r(t)`` on its own past and on an input's past.
 
-    Three least-squares fits on the samples ``start ..`` (``start >= max(k, m)``), each with a
-    constant: ``full`` on ``r(t - 1 .. t - k)`` and ``u(t - 1 .. t - m)``, ``own`` on the
+    Three least-squares fits on the samples ``start ..`` (``start >= max(k, m)``, so no
+    regressor reaches before the series' start), each with a constant (so neither series need
+    be centred): ``full`` on ``r(t - 1 .. t - k)`` and ``u(t - 1 .. t - m)``, ``own`` on the
     residual's past alone, ``input`` on the input's past alone. Returned:
 
     * ``input_share``: the share (%) of what the residual's own past leaves that the input's
@@ -54,6 +55,8 @@ def granger(r: np.ndarray, u: np.ndarray, k: int, m: int, start: int) -> dict[st
     model of order up to ``k``) leaves the input terms without explanatory power exactly when
     the residual is such noise.
     """
+    if k < 1 or m < 1 or start < max(k, m):
+        raise ValueError(f"granger needs k, m >= 1 and start >= max(k, m); got {k}, {m}, {start}")
     r = np.asarray(r, float)
     u = np.asarray(u, float)
     n = r.size
@@ -264,6 +267,9 @@ def excess_kurtosis(e: np.ndarray) -> float:
 
 
 def f_pvalue(f: float, d1: int, d2: int) -> float:
+    """The upper tail of ``F(d1, d2)`` at ``f``: 0 for an infinite ``f``, nan for nan (no test)."""
+    if np.isnan(f):
+        return float("nan")
     return float(stats.f.sf(f, d1, d2)) if np.isfinite(f) else 0.0
 
 

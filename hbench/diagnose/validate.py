@@ -35,7 +35,8 @@ least :data:`MIN_GAIN_UNDETECTED` (a gain its detector missed) except those of
 :data:`DETECTED_ONLY` (``colored-noise``, whose refit of the dynamics gains on many records:
 it needs its detector); under ``detectors``, the fired effects gaining ``MIN_GAIN["detectors"]``.
 The cause is the candidate that gains the most (with one parsimony rule, :data:`PARSIMONY`: a
-noise model that gains nearly as much as one more pole is preferred to it). With no candidate:
+noise model that gains nearly as much as one more pole is preferred to it, whether or not its
+detector fired). With no candidate:
 ``none`` when the nominal model explains the validation part better than its mean (fit above
 :data:`NONE_MIN_FIT`), else ``unexplained``;
 under ``detectors`` also ``unexplained`` when a detector fired but no extension gained.
@@ -84,7 +85,8 @@ MIN_GAIN_UNDETECTED = 20.0
 #: Effects that are candidates only when their detector fired (never through
 #: :data:`MIN_GAIN_UNDETECTED`): the colored-noise extensions re-fit the nominal's dynamics
 #: from ``x`` to ``y``, which gains on many records whose blind nominal simulates worse than
-#: such a fit, whatever their effect; its gain alone is no evidence of coloured noise.
+#: such a fit, whatever their effect; its gain alone is no evidence of coloured noise. (The
+#: :data:`PARSIMONY` rule still weighs such an extension against one more pole.)
 DETECTED_ONLY: tuple[str, ...] = ("colored-noise",)
 #: ``none`` needs a nominal validation fit above this (%): better than the validation mean.
 #: Not tuned; no nominal calibration record (seeds 5000-5199) has a fit below 43 %.
