@@ -240,3 +240,18 @@ def test_parsimony_weighs_a_quiet_colored_noise_extension_against_one_more_pole(
     extensions = {"order": order, "colored-noise": coloured}
     best = validate.choose_extension([order], extensions, 50.0, 2.0)
     assert best is not None and best.name == cause
+
+
+def test_a_colored_noise_diagnosis_reports_the_margin_over_every_class() -> None:
+    """Calibration record 16001: the cause is ``colored-noise``, whose extension re-fits the
+    nominal's class alone; the reported class's scores and margin are the nominal's over
+    every class, so the margin is finite and names a runner-up (not the infinite margin of
+    a class compared with nothing)."""
+    case = bc.draw_bench_case(16001, "colored-noise", "linear", "paper")
+    with np.errstate(all="ignore"):
+        d = validate.diagnose(bc.simulate_bench_case(case))
+    assert d.cause == "colored-noise"
+    nl = d.nonlinearity
+    assert set(nl["scores"]) == set(core.CLASSES)
+    assert np.isfinite(nl["margin"]) and abs(nl["margin"]) < 1e6
+    assert " over " in d.findings()[0] or "cannot tell" in d.findings()[0]
