@@ -4,12 +4,14 @@ benchmark-loop calibration records, and the cause rule's treatment of its extens
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 from scipy import signal
 
 from hbench.diagnose import benchmark_cases as bc
-from hbench.diagnose import core, generator, nominal, stats, validate
+from hbench.diagnose import core, effects, generator, nominal, stats, validate
 from hbench.diagnose.effects import ColoredNoise, Detection, Effect, format_p
 
 # --------------------------------------------------------------------------- the Granger test
@@ -210,9 +212,11 @@ def test_the_detector_reports_the_route_that_fires_with_its_own_p_value(
     """The reported statistic and p-value are one route's, so the verdict agrees with the
     p-value printed beside it."""
     info = {"input_share": 1.0, "drop": 20.0, "own_p": bias[1], "refit_error": ""}
-    monkeypatch.setattr(ColoredNoise, "_bias", lambda self, c, n: (*bias, "b", info))
-    monkeypatch.setattr(ColoredNoise, "_whiteness", lambda self, c, n: (*whiteness, "w"))
-    det = ColoredNoise().detect(None, None)  # type: ignore[arg-type]
+    monkeypatch.setattr(ColoredNoise, "_bias", lambda self, c, n, u: (*bias, "b", info))
+    monkeypatch.setattr(ColoredNoise, "_whiteness", lambda self, c, n, u: (*whiteness, "w"))
+    monkeypatch.setattr(effects, "_u_fast", lambda model, ctx: None)
+    nom = SimpleNamespace(model=None)
+    det = ColoredNoise().detect(None, nom)  # type: ignore[arg-type]
     assert det.info["route"] == route
     assert det.fired is fired
     stat, p = bias if route == "bias" else whiteness

@@ -24,6 +24,7 @@ from scipy import signal
 
 from hbench.diagnose import core
 from hbench.diagnose.core import CLASSES, N_SHAPE, nl_batch
+from hbench.diagnose.stats import lagged
 
 #: Parameters of the contract's JSON per class (the initial-state keys stay internal).
 PUBLIC: dict[str, tuple[str, ...]] = {
@@ -556,8 +557,8 @@ def eq_residual(
     y = np.asarray(y, float)
     rows = st.idx[st.idx >= max(st.na, st.delay + st.nb)]
     cols = [
-        -core._lagged(y, range(1, st.na + 1)),
-        core._lagged(u, range(st.delay + 1, st.delay + 1 + st.nb)),
+        -lagged(y, range(1, st.na + 1)),
+        lagged(u, range(st.delay + 1, st.delay + 1 + st.nb)),
         np.ones((y.size, 1)),
     ]
     if st.extra is not None:

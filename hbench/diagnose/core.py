@@ -20,6 +20,8 @@ from typing import Any
 import numpy as np
 from scipy import signal
 
+from hbench.diagnose.stats import lagged
+
 #: The nonlinearity classes of the contract, in order of complexity.
 CLASSES: tuple[str, ...] = ("linear", "backlash", "deadband", "saturation", "stiction")
 
@@ -266,20 +268,8 @@ def step_basis(a: np.ndarray, delay: int, nb: int, N: int) -> np.ndarray:
     if not TRANSIENT["on"] or nb <= 0:
         return np.zeros((N, 0))
     return signal.lfilter(
-        [1.0], np.asarray(a, float), _lagged(np.ones(N), range(delay + 1, delay + 1 + nb)), axis=0
+        [1.0], np.asarray(a, float), lagged(np.ones(N), range(delay + 1, delay + 1 + nb)), axis=0
     )
-
-
-def _lagged(z: np.ndarray, lags: range, fill: float = 0.0) -> np.ndarray:
-    """Columns ``z(t - l)`` for ``l`` in ``lags`` (``fill`` before the start)."""
-    N = z.size
-    out = np.full((N, len(lags)), fill)
-    for j, lag in enumerate(lags):
-        if lag == 0:
-            out[:, j] = z
-        elif lag < N:
-            out[lag:, j] = z[:-lag]
-    return out
 
 
 def _wls(A: np.ndarray, y: np.ndarray, w: np.ndarray | None) -> np.ndarray:
@@ -358,9 +348,9 @@ def oe_fit(
             uf = signal.lfilter([1.0], a, u)
             cf, exf = ones, ex
         if na:
-            Phi = np.hstack([-_lagged(yf, range(1, na + 1)), _lagged(uf, blags), cf[:, None], exf])
+            Phi = np.hstack([-lagged(yf, range(1, na + 1)), lagged(uf, blags), cf[:, None], exf])
         else:
-            Phi = np.hstack([_lagged(uf, blags), cf[:, None], exf])
+            Phi = np.hstack([lagged(uf, blags), cf[:, None], exf])
         theta = _wls(Phi[sel], yf[sel], wsel)
         a_new = stabilise(np.concatenate([[1.0], theta[:na]])) if na else np.ones(1)
         if it == 0:
@@ -372,7 +362,7 @@ def oe_fit(
     tried.append(a)  # the Steiglitz-McBride estimate (biased under coloured noise)
     # final pass: simulation-error least squares for B, offset, extra and the start-up
     # transient with A fixed
-    ul = _lagged(u, blags)
+    ul = lagged(u, blags)
     yi = y[idx]
     sw = None if w is None else np.sqrt(w)
 
@@ -607,9 +597,9 @@ def arx_residual(
     y = np.asarray(y, float)
     sel = np.asarray(idx)
     sel = sel[sel >= max(na, delay + nb)]
-    cols = [_lagged(u, range(delay + 1, delay + 1 + nb))]
+    cols = [lagged(u, range(delay + 1, delay + 1 + nb))]
     if na:
-        cols.insert(0, -_lagged(y, range(1, na + 1)))
+        cols.insert(0, -lagged(y, range(1, na + 1)))
     Phi = np.hstack([*cols, np.ones((y.size, 1))])[sel]
     theta = np.linalg.lstsq(Phi, y[sel], rcond=None)[0]
     return y[sel] - Phi @ theta
@@ -625,9 +615,9 @@ def arx_rss(
     start = max(na, delay + nb)
     sel = np.asarray(idx)
     sel = sel[sel >= start]
-    cols = [_lagged(u, range(delay + 1, delay + 1 + nb))]
+    cols = [lagged(u, range(delay + 1, delay + 1 + nb))]
     if na:
-        cols.insert(0, -_lagged(y, range(1, na + 1)))
+        cols.insert(0, -lagged(y, range(1, na + 1)))
     Phi = np.hstack([*cols, np.ones((y.size, 1))])[sel]
     theta = np.linalg.lstsq(Phi, y[sel], rcond=None)[0]
     r = y[sel] - Phi @ theta
@@ -658,7 +648,7 @@ def batch_arx(
     idx = np.asarray(idx)
     idx = idx[idx >= max(na, delay + nb)]
     yi = y[idx]
-    shared = [-_lagged(y, range(1, na + 1)), np.ones((N, 1))]
+    shared = [-lagged(y, range(1, na + 1)), np.ones((N, 1))]
     if extra is not None:
         shared.append(np.asarray(extra, float).reshape(N, -1))
     Sh = np.hstack(shared)[idx]  # (n, na + 1 + k)

@@ -319,7 +319,9 @@ class ColoredNoise(Effect):
             )[0]
         return nom.cache["oe_refit"]
 
-    def _whiteness(self, ctx: nm.Context, nom: nm.Nominal) -> tuple[float, float, str]:
+    def _whiteness(
+        self, ctx: nm.Context, nom: nm.Nominal, u: np.ndarray
+    ) -> tuple[float, float, str]:
         e = _fit(ctx, nom, nom.innov)
         q1, p1 = stats.ljung_box(e, self.NLAGS)
         s1 = q1 / e.size
@@ -327,7 +329,7 @@ class ColoredNoise(Effect):
         m = nom.model
         if ctx.p >= 2:
             eq = core.arx_residual(
-                _u_fast(m, ctx),
+                u,
                 ctx.y,
                 m.lin.na,
                 max(m.lin.nb, 2),
@@ -348,12 +350,13 @@ class ColoredNoise(Effect):
         )
         return stat, p, text
 
-    def _bias(self, ctx: nm.Context, nom: nm.Nominal) -> tuple[float, float, str, dict]:
+    def _bias(
+        self, ctx: nm.Context, nom: nm.Nominal, u: np.ndarray
+    ) -> tuple[float, float, str, dict]:
         r = _fit(ctx, nom, nom.resid)
-        u = _fit(ctx, nom, _u_fast(nom.model, ctx))
         m_lags = self.INPUT_LAGS + int(nom.model.lin.delay)
         start = max(self.GRANGER_START, m_lags, self.AR_LAGS)
-        g = stats.granger(r, u, self.AR_LAGS, m_lags, start)
+        g = stats.granger(r, _fit(ctx, nom, u), self.AR_LAGS, m_lags, start)
         try:
             ro = _fit(ctx, nom, ctx.y - self.oe_refit(ctx, nom).simulate(ctx.x))
             drop = 100.0 * (1.0 - float(ro @ ro) / max(float(r @ r), 1e-300))
@@ -379,8 +382,9 @@ class ColoredNoise(Effect):
         return stat, g["own_p"], text, info
 
     def detect(self, ctx: nm.Context, nom: nm.Nominal) -> Detection:
-        sw, pw, tw = self._whiteness(ctx, nom)
-        sb, pb, tb, info = self._bias(ctx, nom)
+        u = _u_fast(nom.model, ctx)  # the nominal inner signal at the fast rate, for both
+        sw, pw, tw = self._whiteness(ctx, nom, u)
+        sb, pb, tb, info = self._bias(ctx, nom, u)
         t = float(self.threshold)
         bias_fires = all(self._passes(sb, pb, t))
         white_fires = all(self._passes(sw, pw, t))

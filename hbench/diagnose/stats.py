@@ -27,9 +27,16 @@ def ljung_box(e: np.ndarray, nlags: int = 20) -> tuple[float, float]:
     return q, float(stats.chi2.sf(q, nlags))
 
 
-def _lags(z: np.ndarray, lags: range) -> np.ndarray:
-    """Columns ``z(t - k)`` for ``k`` in ``lags`` (zeros before the start)."""
-    return np.stack([np.concatenate([np.zeros(k), z[: z.size - k]]) for k in lags], axis=1)
+def lagged(z: np.ndarray, lags: range, fill: float = 0.0) -> np.ndarray:
+    """Columns ``z(t - l)`` for ``l`` in ``lags`` (``fill`` before the start)."""
+    N = z.size
+    out = np.full((N, len(lags)), fill)
+    for j, lag in enumerate(lags):
+        if lag == 0:
+            out[:, j] = z
+        elif lag < N:
+            out[lag:, j] = z[:-lag]
+    return out
 
 
 def granger(r: np.ndarray, u: np.ndarray, k: int, m: int, start: int) -> dict[str, float]:
@@ -60,8 +67,8 @@ def granger(r: np.ndarray, u: np.ndarray, k: int, m: int, start: int) -> dict[st
     r = np.asarray(r, float)
     u = np.asarray(u, float)
     n = r.size
-    R = _lags(r, range(1, k + 1))
-    U = _lags(u, range(1, m + 1))
+    R = lagged(r, range(1, k + 1))
+    U = lagged(u, range(1, m + 1))
     one = np.ones((n, 1))
     y = r[start:]
 

@@ -196,7 +196,7 @@ class Diagnosis:
         m = self.extended if self.ctx.p >= 2 else self.nominal.model
         own = self.nominal.class_fits
         fits = m.info.get("class_fits") or own
-        if m.cls not in fits or (m.cls == self.nominal.chosen and m.cls in own):
+        if m.cls == self.nominal.chosen or m.cls not in fits:
             fits = own
         return m, fits
 
