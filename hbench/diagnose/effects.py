@@ -761,6 +761,11 @@ class TimeVarying(Effect):
     :mod:`hbench.diagnose.null`, when that is larger: a slow plant's noise alone is taken
     away by separate offsets); p-value: the equation-error F at the best break times the
     number of breaks tried (a Bonferroni bound).
+
+    Extension: the model of the regime after the change, fitted on the fit part from
+    :meth:`segment_start` on (the detector's break when it fired, else the fit part's last
+    :data:`LATEST` share): the nominal family re-fitted there, or the blind route run again on
+    that segment, whichever simulates the segment better.
     """
 
     name = "time-varying"
@@ -769,6 +774,9 @@ class TimeVarying(Effect):
     EQ_DROP = 10.0
     SIM_DROP = 25.0
     BREAKS = np.linspace(0.2, 0.8, 13)
+    #: Share of the fit part, at its end, that the extension models when the detector is
+    #: quiet (:meth:`segment_start`).
+    LATEST = 0.3
 
     def detect(self, ctx: nm.Context, nom: nm.Nominal) -> Detection:
         m = nom.model
@@ -841,8 +849,25 @@ class TimeVarying(Effect):
             out[j] = np.where(ok, 100.0 * (1.0 - rss / safe), 0.0)
         return out
 
+    def segment_start(self, ctx: nm.Context, det: Detection) -> int:
+        """Where the extension's segment starts (fast samples into the fit part): the
+        detector's break when it fired, else the start of the fit part's last :data:`LATEST`
+        share.
+
+        The extension is a model of the regime the validation part continues, so its segment
+        must hold no data from before the change: a segment that starts before it fits a
+        mixture of the two regimes. A fired detector has located the change; a quiet one's
+        best break is mostly noise and often lies before the change. The most recent window
+        is then the model of the current regime, at the cost of the data before it (a
+        sliding-window estimate). Choosing the start instead by how well each start's model
+        simulates the fit part's end, which none was fitted on, was tried and lost records:
+        ``docs/experiments/time-varying-segment.md``."""
+        if det.fired:
+            return int(det.info["at"])
+        return int(round((1.0 - self.LATEST) * ctx.n_fit))
+
     def extend(self, ctx: nm.Context, nom: nm.Nominal, det: Detection) -> core.Model:
-        b = int(det.info["at"])
+        b = self.segment_start(ctx, det)
         idx = ctx.fit_idx[b:]
         cands = [nm.nominal_family_fit(nom.model, ctx, idx)]
         k0 = -(-b // ctx.p)

@@ -1,0 +1,73 @@
+"""The time-varying extension's segment: the detector's break when it fired, else the latest
+window of the fit part (``hbench.diagnose.effects.TimeVarying.segment_start``).
+
+The behavioural test uses seed 5001 of the benchmark loops (outside the calibration seeds
+10000-19999 and the held-out seeds 20000-29999): the paper loop, a linear valve, the plant's gain
+and time constants changing at 2468 fast samples into the fit part of 4440. The detector is
+quiet there (its statistic is below 1), and its best break (1346) lies before the change.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from hbench.diagnose import benchmark_cases as bc
+from hbench.diagnose import effects as ef
+from hbench.diagnose.validate import MIN_GAIN_UNDETECTED, criteria_fits, diagnose
+
+
+def _detection(at: int, fired: bool) -> ef.Detection:
+    return ef.Detection("time-varying", 2.0 if fired else 0.5, 0.5, 1.0, fired, "", {"at": at})
+
+
+class _Ctx:
+    n_fit = 4440
+
+
+def test_the_segment_starts_at_a_fired_detectors_break_else_at_the_latest_window():
+    tv = ef.TimeVarying()
+    assert tv.segment_start(_Ctx(), _detection(1346, True)) == 1346
+    quiet = tv.segment_start(_Ctx(), _detection(1346, False))
+    assert quiet == round((1.0 - ef.TimeVarying.LATEST) * _Ctx.n_fit)
+    assert 0 < quiet < _Ctx.n_fit
+
+
+@pytest.fixture(scope="module")
+def changed_record():
+    case = bc.draw_bench_case(5001, "time-varying", "linear", "paper")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rec = bc.simulate_bench_case(case)
+        d = diagnose(rec, source=case.name)
+    return case, d
+
+
+def test_a_quiet_detectors_break_precedes_the_change_and_the_latest_window_does_not(
+    changed_record,
+):
+    case, d = changed_record
+    det = next(x for x in d.detections if x.name == "time-varying")
+    change = int(case.effect_params["at"] * case.K * case.p)
+    assert not det.fired
+    assert det.info["at"] < change  # the quiet detector's break: before the change
+    start = ef.TimeVarying().segment_start(d.ctx, det)
+    assert change <= start < d.ctx.n_fit  # the extension's segment: after it
+
+
+def test_the_latest_window_gains_where_the_quiet_detectors_segment_does_not(changed_record):
+    _, d = changed_record
+    det = next(x for x in d.detections if x.name == "time-varying")
+    crit = d.info["criterion"]
+    tv = ef.TimeVarying()
+    fired_at_break = ef.Detection(det.name, det.statistic, det.p_value, 1.0, True, "", det.info)
+    from_break = tv.extend(d.ctx, d.nominal, fired_at_break)
+    gain_break = criteria_fits(d.ctx, from_break, d.nominal.model, [crit])[crit.name]
+    gain_break -= d.baseline_fit
+    gain_latest = d.extensions["time-varying"].val_fit - d.baseline_fit
+    assert np.isfinite(gain_latest) and np.isfinite(gain_break)
+    assert gain_latest >= MIN_GAIN_UNDETECTED > gain_break
+    assert d.cause == "time-varying"
+    assert d.extensions["time-varying"].model.info["segment_start"] > det.info["at"]
