@@ -859,8 +859,8 @@ class TimeVarying(Effect):
         mixture of the two regimes. A fired detector has located the change; a quiet one's
         best break is mostly noise and often lies before the change. The most recent window
         is then the model of the current regime, at the cost of the data before it (a
-        sliding-window estimate). Choosing the start instead by how well each start's model
-        simulates the fit part's end, which none was fitted on, was tried and lost records:
+        sliding-window estimate). Measurements and the alternative of choosing the start by
+        how well each start's model simulates the fit part's end:
         ``docs/experiments/time-varying-segment.md``."""
         if det.fired:
             return int(det.info["at"])
