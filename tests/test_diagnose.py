@@ -533,3 +533,39 @@ def test_accuracy_interval_resamples_loops_not_records():
     lo, hi = accuracy_interval(rows(spec), "evaluation", n_boot=4000, seed=1)
     assert hi == 100.0 and lo < 40.0
     assert np.isnan(accuracy_interval([], "evaluation")[0])
+
+
+def test_the_diagnosis_is_the_same_whatever_the_blas_thread_count() -> None:
+    """One record of the benchmark loops (seed 5000, outside the calibration and held-out
+    seeds; third-order plant, linear valve, no effect) diagnosed with the process's BLAS
+    limited to one thread and to two: every class score, fit and statistic equal to the last
+    bit (on a machine with two cores or more, two BLAS threads sum in another order unless the
+    diagnosis pins one), and the process's limit as it was afterwards."""
+    import warnings
+
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    from hbench.diagnose import benchmark_cases as bc
+    from hbench.diagnose.validate import diagnose
+
+    case = bc.draw_bench_case(5000, "none", "linear", "third-order")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rec = bc.simulate_bench_case(case)
+    out = []
+    for threads in (1, 2):
+        with threadpool_limits(threads, user_api="blas"):
+            before = [p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"]
+            d = diagnose(rec)
+            after = [p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"]
+        assert after == before
+        out.append(
+            (
+                d.nonlinearity,
+                d.cause,
+                d.baseline_fit,
+                [(x.statistic, x.p_value) for x in d.detections],
+                {k: v.fits for k, v in d.extensions.items()},
+            )
+        )
+    assert out[0] == out[1]

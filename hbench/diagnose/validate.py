@@ -64,6 +64,7 @@ from hbench.diagnose.loop import (
 )
 from hbench.errors import InputError
 from hbench.sim.records import Record
+from hbench.system import runtime
 
 #: The contract's effect names, in the order the JSON lists them.
 CONTRACT_EFFECTS: tuple[str, ...] = (
@@ -566,13 +567,17 @@ def diagnose(
     only those whose detector fired; ``auto`` (default) is ``validation`` for ``p >= 2``,
     where it is calibrated, and ``detectors`` for a plant log (``p = 1``). ``extend_all`` fits
     every extension under the ``detectors`` rule too (for calibration; the cause is still
-    chosen among the fired).
+    chosen among the fired). It runs with one BLAS thread (restored on return), so that its
+    numbers are the same on any machine whatever its core count.
     """
     if rule == "auto":
         rule = "validation" if record.p >= 2 else "detectors"
     if rule not in CAUSE_RULES:
         raise InputError(f"unknown cause rule {rule!r} (choose auto, {', '.join(CAUSE_RULES)})")
-    with core.transient(record.p >= 2):
+    # one BLAS thread: a multi-threaded BLAS sums in another order on another core count, and
+    # the diagnosis (its class scores, margins and fits) is the same to the last bit on any
+    # machine only without it
+    with core.transient(record.p >= 2), runtime.one_blas_thread():
         return _diagnose(
             record,
             source=source,
