@@ -5,15 +5,18 @@ real plant records in ``test_diagnose_real.py``."""
 from __future__ import annotations
 
 import json
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
+from threadpoolctl import threadpool_info, threadpool_limits
 
+from hbench.diagnose import benchmark_cases as bc
 from hbench.diagnose import classes, core, generator, nominal, stats
-from hbench.diagnose.validate import CONTRACT_EFFECTS
+from hbench.diagnose.validate import CONTRACT_EFFECTS, diagnose
 from hbench.model import nonlinearities as nl
 from hbench.plugins import registry
 
@@ -541,13 +544,6 @@ def test_the_diagnosis_is_the_same_whatever_the_blas_thread_count() -> None:
     limited to one thread and to two: every class score, fit and statistic equal to the last
     bit (on a machine with two cores or more, two BLAS threads sum in another order unless the
     diagnosis pins one), and the process's limit as it was afterwards."""
-    import warnings
-
-    from threadpoolctl import threadpool_info, threadpool_limits
-
-    from hbench.diagnose import benchmark_cases as bc
-    from hbench.diagnose.validate import diagnose
-
     case = bc.draw_bench_case(5000, "none", "linear", "third-order")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

@@ -864,7 +864,7 @@ class TimeVarying(Effect):
         ``docs/experiments/time-varying-segment.md``."""
         if det.fired:
             return int(det.info["at"])
-        return int(round((1.0 - self.LATEST) * ctx.n_fit))
+        return round((1.0 - self.LATEST) * ctx.n_fit)
 
     def extend(self, ctx: nm.Context, nom: nm.Nominal, det: Detection) -> core.Model:
         b = self.segment_start(ctx, det)

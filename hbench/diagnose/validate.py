@@ -567,16 +567,14 @@ def diagnose(
     only those whose detector fired; ``auto`` (default) is ``validation`` for ``p >= 2``,
     where it is calibrated, and ``detectors`` for a plant log (``p = 1``). ``extend_all`` fits
     every extension under the ``detectors`` rule too (for calibration; the cause is still
-    chosen among the fired). It runs with one BLAS thread (restored on return), so that its
-    numbers are the same on any machine whatever its core count.
+    chosen among the fired). It runs with one BLAS thread (restored on return): a
+    multi-threaded BLAS sums in another order on another core count, so only then are its
+    numbers (class scores, margins, fits) the same to the last bit on any machine.
     """
     if rule == "auto":
         rule = "validation" if record.p >= 2 else "detectors"
     if rule not in CAUSE_RULES:
         raise InputError(f"unknown cause rule {rule!r} (choose auto, {', '.join(CAUSE_RULES)})")
-    # one BLAS thread: a multi-threaded BLAS sums in another order on another core count, and
-    # the diagnosis (its class scores, margins and fits) is the same to the last bit on any
-    # machine only without it
     with core.transient(record.p >= 2), runtime.one_blas_thread():
         return _diagnose(
             record,
