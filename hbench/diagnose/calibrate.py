@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import functools
 import sys
 from collections.abc import Callable, Iterable, Sequence
 from typing import Any, TypeVar
@@ -25,6 +26,7 @@ import numpy as np
 
 from hbench.diagnose import benchmark_cases as bc
 from hbench.diagnose import generator as gen
+from hbench.system import runtime
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -91,14 +93,22 @@ def run_case(case: gen.Case | bc.BenchCase) -> dict[str, Any]:
     return row
 
 
+def _one_thread(fn: Callable[[T], R], item: T) -> R:
+    with runtime.one_blas_thread():
+        return fn(item)
+
+
 def parallel_map(fn: Callable[[T], R], items: Sequence[T], jobs: int = 1) -> list[R]:
-    """``[fn(item) for item in items]`` (in order), on ``jobs`` processes."""
+    """``[fn(item) for item in items]`` (in order), on ``jobs`` processes, each call with one
+    BLAS thread (:func:`hbench.system.runtime.one_blas_thread`): multi-threaded BLAS sums in
+    another order on another thread count, so without the pin a row's last digits (and a
+    score near a level, its verdict) would depend on the machine's cores and on ``jobs``."""
     if jobs <= 1:
-        return [fn(item) for item in items]
+        return [_one_thread(fn, item) for item in items]
     from concurrent.futures import ProcessPoolExecutor
 
     with ProcessPoolExecutor(jobs) as pool:
-        return list(pool.map(fn, items, chunksize=1))
+        return list(pool.map(functools.partial(_one_thread, fn), items, chunksize=1))
 
 
 def run(cases: Sequence[gen.Case | bc.BenchCase], jobs: int = 1) -> list[dict[str, Any]]:
@@ -293,8 +303,8 @@ def score_baselines(folder: Any, rows: Sequence[dict[str, Any]]) -> list[dict[st
     from hbench.diagnose import baselines
 
     out = []
-    for r in rows:
-        found, message = run_baselines(Path(folder) / r["file"])
+    answers = parallel_map(run_baselines, [Path(folder) / r["file"] for r in rows])
+    for r, (found, message) in zip(rows, answers, strict=True):
         verdicts = dict(r.get("verdicts", {}))
         for name in baselines.DETECTORS:
             verdicts[name] = found[name].verdict if name in found else REFUSED
@@ -524,16 +534,18 @@ def pattern_tests(x: np.ndarray, y: np.ndarray, r: np.ndarray | None) -> dict[st
     }
 
 
+def _patterns_of(case: gen.LoopCase) -> dict[str, Any]:
+    rec = gen.simulate_loop(case)
+    r = None if rec.r is None else rec.r[0]
+    return {"cls": case.cls, **pattern_tests(rec.x[0], rec.y[0], r)}
+
+
 def main_patterns(argv: Sequence[str] | None = None) -> int:
     """``python -m hbench.diagnose.calibrate patterns [--n N] [--start S]``: how often each
     OP-PV pattern test (:func:`pattern_tests`) calls stiction on the synthetic plant loops,
     per true valve class."""
     args = loop_arguments("patterns", jobs=False).parse_args(argv)
-    rows = []
-    for case in gen.loop_cases(args.n, args.start):
-        rec = gen.simulate_loop(case)
-        r = None if rec.r is None else rec.r[0]
-        rows.append({"cls": case.cls, **pattern_tests(rec.x[0], rec.y[0], r)})
+    rows = parallel_map(_patterns_of, gen.loop_cases(args.n, args.start))
     for test in ("yamashita", "kano_stuck", "nonlinear"):
         cells = []
         for cls in gen.LOOP_VALVES:
