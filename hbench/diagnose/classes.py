@@ -141,6 +141,110 @@ def fine_grid(
     return {}
 
 
+#: Dead zone on the graph: the largest gaps of sorted ``x`` whose positions split the data
+#: (beside the quantile positions) in :func:`deadband_partitions`.
+DEADBAND_GAPS = 5
+
+
+def deadband_partitions(x: np.ndarray, U: np.ndarray) -> dict[str, np.ndarray]:
+    r"""Dead-zone candidates ``(lower, upper)`` fitted to the graph ``(x, U)`` per partition of
+    the data, for the grid search of :func:`fit_graph`.
+
+    The dead zone ``f(x) = x - clip(x, lower, upper)`` is linear in its parameters once it is
+    known which samples lie below the band (``L``), in it (``M``) and above it (``R``):
+
+    .. math::
+
+        U = c f(x) + d = c\,x\,1_{L \cup R} - c\,\mathrm{lower}\,1_L
+            - c\,\mathrm{upper}\,1_R + d,
+
+    least squares in ``(c, -c lower, -c upper, d)``. With ``M`` empty, ``d`` and the band's
+    position are not identified (``1_L + 1_R = 1``): ``U = c x + b + g 1_R`` gives the width
+    ``w = -g / c``, and the band is centred in the gap of ``x`` between ``L`` and ``R``. In a
+    closed loop ``x`` often jumps across the dead zone and never rests in it, so sorted ``x``
+    has a gap there and no quantile of ``x`` is a band edge: the coarse grid's candidates
+    (edges at quantiles) then miss the band, which these find.
+
+    Partitions: split positions of sorted ``x`` at its 5 %-step quantiles and at its
+    :data:`DEADBAND_GAPS` largest gaps; every pair ``i <= j`` (``L`` = the first ``i``,
+    ``M`` the next ``j - i``, ``R`` the rest, ``L`` and ``R`` non-empty). Each pair's fit,
+    its edges clipped into the partition's own intervals (so that the candidate puts the same
+    samples below, in and above the band), is one candidate; the grid search scores it by its
+    own least squares like any other.
+    """
+    ok = np.isfinite(U)
+    xs_order = np.argsort(x[ok], kind="stable")
+    xs, us = x[ok][xs_order], U[ok][xs_order]
+    n = xs.size
+    if n < 8:
+        return {"lower": np.empty(0), "upper": np.empty(0)}
+    pos = set(np.round(np.linspace(0, n, 21)[1:-1]).astype(int).tolist())
+    gaps = np.diff(xs)
+    pos.update((np.argsort(gaps)[::-1][:DEADBAND_GAPS] + 1).tolist())
+    pos_a = np.array(sorted(p for p in pos if 1 <= p <= n - 1))
+    cs = [np.concatenate([[0.0], np.cumsum(v)]) for v in (np.ones(n), xs, xs * xs, us, xs * us)]
+    i, j = np.meshgrid(pos_a, pos_a, indexing="ij")
+    keep = i <= j
+    i, j = i[keep], j[keep]
+
+    def part(k: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return cs[k][b] - cs[k][a]
+
+    nL, nR = part(0, 0 * i, i), part(0, j, n + 0 * j)
+    xL, xR = part(1, 0 * i, i), part(1, j, n + 0 * j)
+    qL, qR = part(2, 0 * i, i), part(2, j, n + 0 * j)
+    uL, uR = part(3, 0 * i, i), part(3, j, n + 0 * j)
+    vL, vR = part(4, 0 * i, i), part(4, j, n + 0 * j)
+    lower = np.full(i.size, np.nan)
+    upper = np.full(i.size, np.nan)
+    # M non-empty: regressors (x 1_{L u R}, 1_L, 1_R, 1)
+    mid = j > i
+    G = np.zeros((int(mid.sum()), 4, 4))
+    r = np.zeros((int(mid.sum()), 4))
+    m = mid
+    G[:, 0, 0] = qL[m] + qR[m]
+    G[:, 0, 1] = G[:, 1, 0] = xL[m]
+    G[:, 0, 2] = G[:, 2, 0] = xR[m]
+    G[:, 0, 3] = G[:, 3, 0] = xL[m] + xR[m]
+    G[:, 1, 1] = G[:, 1, 3] = G[:, 3, 1] = nL[m]
+    G[:, 2, 2] = G[:, 2, 3] = G[:, 3, 2] = nR[m]
+    G[:, 3, 3] = n
+    r[:, 0] = vL[m] + vR[m]
+    r[:, 1], r[:, 2], r[:, 3] = uL[m], uR[m], cs[3][n]
+    with np.errstate(all="ignore"):
+        sol = (np.linalg.pinv(G) @ r[..., None])[..., 0] if G.size else np.empty((0, 4))
+        lower[m] = -sol[:, 1] / sol[:, 0]
+        upper[m] = -sol[:, 2] / sol[:, 0]
+    # M empty: regressors (x, 1, 1_R); the width w = -g / c, centred in the gap
+    e = ~mid
+    if e.any():
+        G3 = np.zeros((int(e.sum()), 3, 3))
+        r3 = np.zeros((int(e.sum()), 3))
+        G3[:, 0, 0] = qL[e] + qR[e]
+        G3[:, 0, 1] = G3[:, 1, 0] = xL[e] + xR[e]
+        G3[:, 0, 2] = G3[:, 2, 0] = xR[e]
+        G3[:, 1, 1] = n
+        G3[:, 1, 2] = G3[:, 2, 1] = G3[:, 2, 2] = nR[e]
+        r3[:, 0] = vL[e] + vR[e]
+        r3[:, 1], r3[:, 2] = cs[3][n], uR[e]
+        with np.errstate(all="ignore"):
+            sol3 = (np.linalg.pinv(G3) @ r3[..., None])[..., 0]
+            w = -sol3[:, 2] / sol3[:, 0]
+        a, b = xs[i[e] - 1], xs[i[e]]
+        w = np.clip(w, 0.0, b - a)
+        lower[e] = (a + b - w) / 2
+        upper[e] = (a + b + w) / 2
+    # the partition's own intervals: L below lower, M inside, R above upper
+    lo_min = xs[i - 1]
+    lo_max = np.where(mid, xs[np.minimum(i, n - 1)], xs[i])
+    hi_min = np.where(mid, xs[np.maximum(j - 1, 0)], xs[i - 1])
+    hi_max = xs[np.minimum(j, n - 1)]
+    lower = np.clip(lower, lo_min, lo_max)
+    upper = np.clip(upper, hi_min, hi_max)
+    good = np.isfinite(lower) & np.isfinite(upper) & (lower <= upper)
+    return {"lower": lower[good], "upper": upper[good]}
+
+
 def _take(params: dict[str, np.ndarray], c: int) -> dict[str, float]:
     return {k: float(v[c]) for k, v in params.items()}
 
@@ -188,7 +292,11 @@ def fit_graph(
             theta: dict[str, float] = {}
             rss = float(_graph_rss(x[None, ok], U[ok])[0])
         else:
-            theta, rss = _graph_best(cls, x, U, ok, coarse_grid(cls, x))
+            grid = coarse_grid(cls, x)
+            if cls == "deadband":  # edges inside gaps of x, where no quantile is
+                extra = deadband_partitions(x, U)
+                grid = {k: np.concatenate([v, extra[k]]) for k, v in grid.items()}
+            theta, rss = _graph_best(cls, x, U, ok, grid)
             if cls == "stiction" and "backlash" in fits:  # J = 0 is backlash: seed with it
                 th = fits["backlash"].theta
                 seed = {"S": th["width"], "J": 0.0, "d0": 1.0, "g0": th["g0"]}
