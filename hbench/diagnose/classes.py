@@ -91,7 +91,11 @@ def coarse_grid(cls: str, x: np.ndarray) -> dict[str, np.ndarray]:
     if cls == "deadband":
         lo, hi = np.meshgrid(q[1:-1], q[1:-1], indexing="ij")
         m = lo <= hi
-        return {"lower": lo[m], "upper": hi[m]}
+        gap = gap_bands(x)
+        return {
+            "lower": np.concatenate([lo[m], gap["lower"]]),
+            "upper": np.concatenate([hi[m], gap["upper"]]),
+        }
     if cls == "saturation":
         lows = np.concatenate([[-np.inf], q[1:11]])
         highs = np.concatenate([q[10:-1], [np.inf]])
@@ -99,6 +103,34 @@ def coarse_grid(cls: str, x: np.ndarray) -> dict[str, np.ndarray]:
         m = lo < hi
         return {"u_min": lo[m], "u_max": hi[m]}
     raise ValueError(cls)
+
+
+#: Dead zone: the largest gaps of sorted ``x`` searched for a band (:func:`gap_bands`,
+#: :func:`deadband_partitions`) ...
+DEADBAND_GAPS = 5
+#: ... and the band widths tried in each gap (equal steps up to the gap's width).
+GAP_WIDTHS = 12
+
+
+def gap_bands(x: np.ndarray) -> dict[str, np.ndarray]:
+    """Dead-zone candidates inside the :data:`DEADBAND_GAPS` largest gaps of sorted ``x``:
+    :data:`GAP_WIDTHS` widths per gap, each band centred in its gap.
+
+    In a closed loop ``x`` often jumps across a dead zone and never rests in it, so sorted
+    ``x`` has a gap there and no quantile of ``x`` (the other candidates' edges) is a band
+    edge. With no sample in the band only its width shows (``f(x) = x - upper`` above it,
+    ``x - lower`` below it: the band's position is an offset, which the fit's own offset
+    takes), so a grid of widths in the gap covers every such band; the finer grids then move
+    each edge."""
+    xs = np.sort(np.asarray(x, float)[np.isfinite(x)])
+    if xs.size < 2:
+        return {"lower": np.empty(0), "upper": np.empty(0)}
+    gaps = np.diff(xs)
+    top = np.argsort(gaps, kind="stable")[::-1][:DEADBAND_GAPS]
+    top = top[gaps[top] > 0]
+    w = gaps[top][:, None] * (np.arange(1, GAP_WIDTHS + 1) / GAP_WIDTHS)[None, :]
+    centre = ((xs[top] + xs[top + 1]) / 2)[:, None]
+    return {"lower": (centre - w / 2).ravel(), "upper": (centre + w / 2).ravel()}
 
 
 def fine_grid(
@@ -141,11 +173,6 @@ def fine_grid(
     return {}
 
 
-#: Dead zone on the graph: the largest gaps of sorted ``x`` whose positions split the data
-#: (beside the quantile positions) in :func:`deadband_partitions`.
-DEADBAND_GAPS = 5
-
-
 def deadband_partitions(x: np.ndarray, U: np.ndarray) -> dict[str, np.ndarray]:
     r"""Dead-zone candidates ``(lower, upper)`` fitted to the graph ``(x, U)`` per partition of
     the data, for the grid search of :func:`fit_graph`.
@@ -180,7 +207,7 @@ def deadband_partitions(x: np.ndarray, U: np.ndarray) -> dict[str, np.ndarray]:
         return {"lower": np.empty(0), "upper": np.empty(0)}
     pos = set(np.round(np.linspace(0, n, 21)[1:-1]).astype(int).tolist())
     gaps = np.diff(xs)
-    pos.update((np.argsort(gaps)[::-1][:DEADBAND_GAPS] + 1).tolist())
+    pos.update((np.argsort(gaps, kind="stable")[::-1][:DEADBAND_GAPS] + 1).tolist())
     pos_a = np.array(sorted(p for p in pos if 1 <= p <= n - 1))
     cs = [np.concatenate([[0.0], np.cumsum(v)]) for v in (np.ones(n), xs, xs * xs, us, xs * us)]
     i, j = np.meshgrid(pos_a, pos_a, indexing="ij")
