@@ -4,9 +4,10 @@
 Every class is fitted as ``u = c f(x; theta) + d``: the inner signal of a blind method carries an
 unknown gain and offset (the normalisation ``b1 = 1``), and through the dynamics the linear part
 takes them. ``theta`` is searched on a grid scaled to the robust range of ``x`` (1st to 99th
-percentile), then on a finer grid around the best point. The memory classes also grid the state
-the valve started in (the record does not say where it was): ``g0`` (where in its band) and, for
-stiction, ``d0`` (the direction it last moved).
+percentile; a dead zone's edges at quantiles of ``x`` and, where ``x`` jumps across the band,
+inside the gaps of ``x``: :func:`gap_bands`), then on a finer grid around the best point. The
+memory classes also grid the state the valve started in (the record does not say where it
+was): ``g0`` (where in its band) and, for stiction, ``d0`` (the direction it last moved).
 
 Scores (the contract's ``nonlinearity.scores``): the evidence for each class over ``linear``,
 larger is better and ``linear`` is 0. On the graph it is half the BIC difference
@@ -73,7 +74,8 @@ def _mesh(**axes: np.ndarray) -> dict[str, np.ndarray]:
 
 
 def coarse_grid(cls: str, x: np.ndarray) -> dict[str, np.ndarray]:
-    """A coarse grid of candidates for ``cls`` scaled to ``x``."""
+    """A coarse grid of candidates for ``cls`` scaled to ``x`` (a dead zone: both edges at the
+    5 %-step quantiles of ``x``, and the bands of :func:`gap_bands`)."""
     s = core.scale_of(x)
     if cls == "linear":
         return {}
@@ -106,15 +108,39 @@ def coarse_grid(cls: str, x: np.ndarray) -> dict[str, np.ndarray]:
 
 
 #: Dead zone: the largest gaps of sorted ``x`` searched for a band (:func:`gap_bands`,
-#: :func:`deadband_partitions`) ...
+#: :func:`deadband_partitions`), each with at least :data:`TAIL_SHARE` of the samples on
+#: either side ...
 DEADBAND_GAPS = 5
+#: ... (the quantile candidates' range, 5 % to 95 %: a gap next to the few most extreme
+#: samples would give them an offset of their own, a dead zone fitting an outlier) ...
+TAIL_SHARE = 0.05
 #: ... and the band widths tried in each gap (equal steps up to the gap's width).
 GAP_WIDTHS = 12
 
 
+def _tail_count(n: int) -> int:
+    """The fewest samples (at least one) on each side of a dead-zone candidate's gap or
+    partition: :data:`TAIL_SHARE` of ``n``."""
+    return max(1, round(TAIL_SHARE * n))
+
+
+def _inner_gaps(xs: np.ndarray) -> np.ndarray:
+    """Indices ``k`` of the :data:`DEADBAND_GAPS` largest gaps ``xs[k + 1] - xs[k] > 0`` of
+    sorted ``xs`` with at least :data:`TAIL_SHARE` of the samples on each side, largest
+    first (ties: the lower ``k`` first)."""
+    n = xs.size
+    m = _tail_count(n)
+    gaps = np.diff(xs)
+    k = np.arange(gaps.size)
+    inner = (k + 1 >= m) & (n - (k + 1) >= m) & (gaps > 0)
+    k, g = k[inner], gaps[inner]
+    return k[np.argsort(-g, kind="stable")][:DEADBAND_GAPS]
+
+
 def gap_bands(x: np.ndarray) -> dict[str, np.ndarray]:
-    """Dead-zone candidates inside the :data:`DEADBAND_GAPS` largest gaps of sorted ``x``:
-    :data:`GAP_WIDTHS` widths per gap, each band centred in its gap.
+    """Dead-zone candidates ``lower <= upper`` inside the largest gaps of sorted ``x``
+    (:func:`_inner_gaps`): :data:`GAP_WIDTHS` widths per gap, from ``1 / GAP_WIDTHS`` of the
+    gap to all of it, each band centred in its gap (non-finite ``x`` left out).
 
     In a closed loop ``x`` often jumps across a dead zone and never rests in it, so sorted
     ``x`` has a gap there and no quantile of ``x`` (the other candidates' edges) is a band
@@ -123,14 +149,11 @@ def gap_bands(x: np.ndarray) -> dict[str, np.ndarray]:
     takes), so a grid of widths in the gap covers every such band; the finer grids then move
     each edge."""
     xs = np.sort(np.asarray(x, float)[np.isfinite(x)])
-    if xs.size < 2:
-        return {"lower": np.empty(0), "upper": np.empty(0)}
-    gaps = np.diff(xs)
-    top = np.argsort(gaps, kind="stable")[::-1][:DEADBAND_GAPS]
-    top = top[gaps[top] > 0]
-    w = gaps[top][:, None] * (np.arange(1, GAP_WIDTHS + 1) / GAP_WIDTHS)[None, :]
-    centre = ((xs[top] + xs[top + 1]) / 2)[:, None]
-    return {"lower": (centre - w / 2).ravel(), "upper": (centre + w / 2).ravel()}
+    top = _inner_gaps(xs) if xs.size >= 2 else np.empty(0, int)
+    w = (xs[top + 1] - xs[top])[:, None] * (np.arange(1, GAP_WIDTHS + 1) / GAP_WIDTHS)[None, :]
+    a, b = xs[top][:, None], xs[top + 1][:, None]
+    half_rest = (b - a - w) / 2  # >= 0: the band inside [a, b], rounding included
+    return {"lower": (a + half_rest).ravel(), "upper": (b - half_rest).ravel()}
 
 
 def fine_grid(
@@ -189,27 +212,42 @@ def deadband_partitions(x: np.ndarray, U: np.ndarray) -> dict[str, np.ndarray]:
     position are not identified (``1_L + 1_R = 1``): ``U = c x + b + g 1_R`` gives the width
     ``w = -g / c``, and the band is centred in the gap of ``x`` between ``L`` and ``R``. In a
     closed loop ``x`` often jumps across the dead zone and never rests in it, so sorted ``x``
-    has a gap there and no quantile of ``x`` is a band edge: the coarse grid's candidates
-    (edges at quantiles) then miss the band, which these find.
+    has a gap there and no quantile of ``x`` is a band edge: the coarse grid's quantile
+    candidates then miss the band, which these find exactly (noise-free).
 
-    Partitions: split positions of sorted ``x`` at its 5 %-step quantiles and at its
-    :data:`DEADBAND_GAPS` largest gaps; every pair ``i <= j`` (``L`` = the first ``i``,
-    ``M`` the next ``j - i``, ``R`` the rest, ``L`` and ``R`` non-empty). Each pair's fit,
-    its edges clipped into the partition's own intervals (so that the candidate puts the same
-    samples below, in and above the band), is one candidate; the grid search scores it by its
-    own least squares like any other.
+    Partitions: split positions of sorted ``x`` at its 5 %-step quantiles and after its
+    largest inner gaps (:func:`_inner_gaps`); every pair ``i <= j`` (``L`` = the first ``i``
+    samples, ``M`` the next ``j - i``, ``R`` the rest), with at least :data:`TAIL_SHARE` of
+    the samples in ``L`` and in ``R``. Each pair's fit with a finite gain ``c``, its edges
+    clipped into the partition's own intervals (so that the candidate puts the same samples
+    below, in and above the band), is one candidate; the grid search scores it by its own
+    least squares like any other. The sums are taken on ``x`` standardised (the edges mapped
+    back), so the result does not depend on the offset and scale of ``x``. Samples with a
+    non-finite ``x`` or ``U`` are left out; fewer than 8 samples, or a constant ``x``, give no
+    candidate.
+
+    Returns
+    -------
+    dict
+        ``{"lower": array, "upper": array}``, ``lower <= upper`` elementwise (the band is
+        closed: ``f = 0`` for ``lower <= x <= upper``).
     """
-    ok = np.isfinite(U)
-    xs_order = np.argsort(x[ok], kind="stable")
-    xs, us = x[ok][xs_order], U[ok][xs_order]
+    ok = np.isfinite(U) & np.isfinite(x)
+    order = np.argsort(x[ok], kind="stable")
+    xs, us = x[ok][order], U[ok][order]
     n = xs.size
-    if n < 8:
+    sd = float(np.std(xs)) if n else 0.0
+    if n < 8 or not sd > 0:
         return {"lower": np.empty(0), "upper": np.empty(0)}
+    mu = float(np.mean(xs))
+    z = (xs - mu) / sd  # the sums of the normal equations on a standardised x
+    m = _tail_count(n)
     pos = set(np.round(np.linspace(0, n, 21)[1:-1]).astype(int).tolist())
-    gaps = np.diff(xs)
-    pos.update((np.argsort(gaps, kind="stable")[::-1][:DEADBAND_GAPS] + 1).tolist())
-    pos_a = np.array(sorted(p for p in pos if 1 <= p <= n - 1))
-    cs = [np.concatenate([[0.0], np.cumsum(v)]) for v in (np.ones(n), xs, xs * xs, us, xs * us)]
+    pos.update((_inner_gaps(xs) + 1).tolist())
+    pos_a = np.array(sorted(p for p in pos if m <= p <= n - m))
+    if pos_a.size == 0:
+        return {"lower": np.empty(0), "upper": np.empty(0)}
+    cs = [np.concatenate([[0.0], np.cumsum(v)]) for v in (np.ones(n), z, z * z, us, z * us)]
     i, j = np.meshgrid(pos_a, pos_a, indexing="ij")
     keep = i <= j
     i, j = i[keep], j[keep]
@@ -224,51 +262,48 @@ def deadband_partitions(x: np.ndarray, U: np.ndarray) -> dict[str, np.ndarray]:
     vL, vR = part(4, 0 * i, i), part(4, j, n + 0 * j)
     lower = np.full(i.size, np.nan)
     upper = np.full(i.size, np.nan)
-    # M non-empty: regressors (x 1_{L u R}, 1_L, 1_R, 1)
-    mid = j > i
-    G = np.zeros((int(mid.sum()), 4, 4))
-    r = np.zeros((int(mid.sum()), 4))
-    m = mid
-    G[:, 0, 0] = qL[m] + qR[m]
-    G[:, 0, 1] = G[:, 1, 0] = xL[m]
-    G[:, 0, 2] = G[:, 2, 0] = xR[m]
-    G[:, 0, 3] = G[:, 3, 0] = xL[m] + xR[m]
-    G[:, 1, 1] = G[:, 1, 3] = G[:, 3, 1] = nL[m]
-    G[:, 2, 2] = G[:, 2, 3] = G[:, 3, 2] = nR[m]
+    # M non-empty: regressors (z 1_{L u R}, 1_L, 1_R, 1)
+    m4 = j > i
+    G = np.zeros((int(m4.sum()), 4, 4))
+    r = np.zeros((int(m4.sum()), 4))
+    G[:, 0, 0] = qL[m4] + qR[m4]
+    G[:, 0, 1] = G[:, 1, 0] = xL[m4]
+    G[:, 0, 2] = G[:, 2, 0] = xR[m4]
+    G[:, 0, 3] = G[:, 3, 0] = xL[m4] + xR[m4]
+    G[:, 1, 1] = G[:, 1, 3] = G[:, 3, 1] = nL[m4]
+    G[:, 2, 2] = G[:, 2, 3] = G[:, 3, 2] = nR[m4]
     G[:, 3, 3] = n
-    r[:, 0] = vL[m] + vR[m]
-    r[:, 1], r[:, 2], r[:, 3] = uL[m], uR[m], cs[3][n]
+    r[:, 0] = vL[m4] + vR[m4]
+    r[:, 1], r[:, 2], r[:, 3] = uL[m4], uR[m4], cs[3][n]
     with np.errstate(all="ignore"):
-        sol = (np.linalg.pinv(G) @ r[..., None])[..., 0] if G.size else np.empty((0, 4))
-        lower[m] = -sol[:, 1] / sol[:, 0]
-        upper[m] = -sol[:, 2] / sol[:, 0]
-    # M empty: regressors (x, 1, 1_R); the width w = -g / c, centred in the gap
-    e = ~mid
-    if e.any():
-        G3 = np.zeros((int(e.sum()), 3, 3))
-        r3 = np.zeros((int(e.sum()), 3))
-        G3[:, 0, 0] = qL[e] + qR[e]
-        G3[:, 0, 1] = G3[:, 1, 0] = xL[e] + xR[e]
-        G3[:, 0, 2] = G3[:, 2, 0] = xR[e]
-        G3[:, 1, 1] = n
-        G3[:, 1, 2] = G3[:, 2, 1] = G3[:, 2, 2] = nR[e]
-        r3[:, 0] = vL[e] + vR[e]
-        r3[:, 1], r3[:, 2] = cs[3][n], uR[e]
-        with np.errstate(all="ignore"):
-            sol3 = (np.linalg.pinv(G3) @ r3[..., None])[..., 0]
-            w = -sol3[:, 2] / sol3[:, 0]
-        a, b = xs[i[e] - 1], xs[i[e]]
-        w = np.clip(w, 0.0, b - a)
-        lower[e] = (a + b - w) / 2
-        upper[e] = (a + b + w) / 2
-    # the partition's own intervals: L below lower, M inside, R above upper
-    lo_min = xs[i - 1]
-    lo_max = np.where(mid, xs[np.minimum(i, n - 1)], xs[i])
-    hi_min = np.where(mid, xs[np.maximum(j - 1, 0)], xs[i - 1])
-    hi_max = xs[np.minimum(j, n - 1)]
-    lower = np.clip(lower, lo_min, lo_max)
-    upper = np.clip(upper, hi_min, hi_max)
-    good = np.isfinite(lower) & np.isfinite(upper) & (lower <= upper)
+        sol = (np.linalg.pinv(G) @ r[..., None])[..., 0]
+        lower[m4] = -sol[:, 1] / sol[:, 0]
+        upper[m4] = -sol[:, 2] / sol[:, 0]
+    # M empty: regressors (z, 1, 1_R); the width w = -g / c, centred in the gap
+    e = ~m4
+    G3 = np.zeros((int(e.sum()), 3, 3))
+    r3 = np.zeros((int(e.sum()), 3))
+    G3[:, 0, 0] = qL[e] + qR[e]
+    G3[:, 0, 1] = G3[:, 1, 0] = xL[e] + xR[e]
+    G3[:, 0, 2] = G3[:, 2, 0] = xR[e]
+    G3[:, 1, 1] = n
+    G3[:, 1, 2] = G3[:, 2, 1] = G3[:, 2, 2] = nR[e]
+    r3[:, 0] = vL[e] + vR[e]
+    r3[:, 1], r3[:, 2] = cs[3][n], uR[e]
+    with np.errstate(all="ignore"):
+        sol3 = (np.linalg.pinv(G3) @ r3[..., None])[..., 0]
+        w = -sol3[:, 2] / sol3[:, 0]
+    a, b = z[i[e] - 1], z[i[e]]
+    w = np.where(np.isfinite(w), np.clip(w, 0.0, b - a), np.nan)
+    lower[e] = a + (b - a - w) / 2
+    upper[e] = b - (b - a - w) / 2
+    # a fit without a finite gain (c = 0) is no candidate; the others' edges, back on the
+    # scale of x, are clipped into the partition's own intervals: L below lower, M inside, R
+    # above upper (i = j, M empty: both in the same gap)
+    fit = np.isfinite(lower) & np.isfinite(upper)
+    lower = np.clip(mu + sd * lower, xs[i - 1], xs[i])
+    upper = np.clip(mu + sd * upper, xs[j - 1], xs[j])
+    good = fit & (lower <= upper)
     return {"lower": lower[good], "upper": upper[good]}
 
 
