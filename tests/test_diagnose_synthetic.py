@@ -99,7 +99,7 @@ SLOW_RATES = {"cause": 0.87, "class": 0.94, "gain": 0.90}
 LOOP_START = 1000
 LOOP_CALLED_STICTION = {
     "stiction": (9, 64),
-    "linear": (4, 16),
+    "linear": (3, 16),
     "backlash": (2, 16),
     "deadband": (0, 16),
     "saturation": (2, 16),
