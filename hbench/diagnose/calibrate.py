@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import collections
-import functools
 import sys
 from collections.abc import Callable, Iterable, Sequence
 from typing import Any, TypeVar
@@ -93,22 +92,20 @@ def run_case(case: gen.Case | bc.BenchCase) -> dict[str, Any]:
     return row
 
 
-def _one_thread(fn: Callable[[T], R], item: T) -> R:
-    with runtime.one_blas_thread():
-        return fn(item)
-
-
 def parallel_map(fn: Callable[[T], R], items: Sequence[T], jobs: int = 1) -> list[R]:
-    """``[fn(item) for item in items]`` (in order), on ``jobs`` processes, each call with one
-    BLAS thread (:func:`hbench.system.runtime.one_blas_thread`): multi-threaded BLAS sums in
-    another order on another thread count, so without the pin a row's last digits (and a
-    score near a level, its verdict) would depend on the machine's cores and on ``jobs``."""
+    """``[fn(item) for item in items]`` (in order), on ``jobs`` processes, every call with one
+    BLAS thread: in this process under :func:`hbench.system.runtime.one_blas_thread`
+    (restored on return), in the workers of :func:`hbench.bench.parallel.pool` (one thread
+    for their life). A multi-threaded BLAS sums in another order on another thread count, so
+    without the pin a row's last digits (and a score near a level, its verdict) would depend
+    on the machine's cores and on ``jobs``."""
     if jobs <= 1:
-        return [_one_thread(fn, item) for item in items]
-    from concurrent.futures import ProcessPoolExecutor
+        with runtime.one_blas_thread():
+            return [fn(item) for item in items]
+    from hbench.bench import parallel
 
-    with ProcessPoolExecutor(jobs) as pool:
-        return list(pool.map(functools.partial(_one_thread, fn), items, chunksize=1))
+    with parallel.pool(jobs) as pool:
+        return list(pool.map(fn, items, chunksize=1))
 
 
 def run(cases: Sequence[gen.Case | bc.BenchCase], jobs: int = 1) -> list[dict[str, Any]]:
