@@ -247,19 +247,14 @@ def deadband_partitions(x: np.ndarray, U: np.ndarray) -> dict[str, np.ndarray]:
     pos_a = np.array(sorted(p for p in pos if m <= p <= n - m))
     if pos_a.size == 0:
         return {"lower": np.empty(0), "upper": np.empty(0)}
-    cs = [np.concatenate([[0.0], np.cumsum(v)]) for v in (np.ones(n), z, z * z, us, z * us)]
     i, j = np.meshgrid(pos_a, pos_a, indexing="ij")
     keep = i <= j
     i, j = i[keep], j[keep]
-
-    def part(k: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        return cs[k][b] - cs[k][a]
-
-    nL, nR = part(0, 0 * i, i), part(0, j, n + 0 * j)
-    xL, xR = part(1, 0 * i, i), part(1, j, n + 0 * j)
-    qL, qR = part(2, 0 * i, i), part(2, j, n + 0 * j)
-    uL, uR = part(3, 0 * i, i), part(3, j, n + 0 * j)
-    vL, vR = part(4, 0 * i, i), part(4, j, n + 0 * j)
+    # sums over L (the first i samples) and R (from j on) of 1, z, z^2, U, z U: prefix sums
+    cs = [np.concatenate([[0.0], np.cumsum(v)]) for v in (np.ones(n), z, z * z, us, z * us)]
+    (nL, xL, qL, uL, vL), (nR, xR, qR, uR, vR) = zip(
+        *((c[i], c[n] - c[j]) for c in cs), strict=True
+    )
     lower = np.full(i.size, np.nan)
     upper = np.full(i.size, np.nan)
     # M non-empty: regressors (z 1_{L u R}, 1_L, 1_R, 1)
