@@ -125,3 +125,61 @@ def test_gap_bands_let_equation_error_find_a_band_that_x_jumps_across() -> None:
     F = np.repeat(core.nl_batch("deadband", x, quantiles_only), p, axis=1)
     rss_q, _ = core.batch_arx(F, y, 1, 2, 0, idx, None)
     assert rss_lin - rss_q.min() < 0.1 * (rss_lin - rss)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_a_one_sided_saturation_is_not_called_a_dead_zone(seed: int) -> None:
+    """``U = 2 min(x, c) + 0.3`` with noise, clipping the top 25 % of ``x`` (uniform): a dead
+    zone ``[c, upper]`` with ``upper`` past the largest samples is the same map up to an
+    offset and fits as well. It is one-sided (:func:`hbench.diagnose.classes.one_sided`), so it
+    must beat the saturation by the nesting margin, which it does not: the class is
+    ``saturation``, its edge where the dead zone's lower edge is, and the dead zone is no
+    rival in the margin."""
+    from hbench.diagnose.validate import class_margin
+
+    rng = np.random.default_rng(seed)
+    x = rng.uniform(-1.0, 1.0, 800)
+    c = float(np.quantile(x, 0.75))
+    U = 2.0 * np.minimum(x, c) + 0.3 + 0.01 * rng.standard_normal(x.size)
+    fits = classes.fit_graph(x, U)
+    db, sat = fits["deadband"], fits["saturation"]
+    assert float(np.mean(x >= db.theta["upper"])) < classes.TAIL_SHARE  # the one-sided band
+    assert db.info["one_sided"]
+    assert db.score < sat.score + nominal.GRAPH_NEST_MARGIN
+    assert abs(sat.theta["u_max"] - c) < 0.02 and sat.theta["u_min"] == -np.inf
+    chosen = nominal.choose_graph(fits)
+    assert chosen == "saturation"
+    margin, runner = class_margin(chosen, fits)
+    assert runner != "deadband" and margin > 0.0
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_a_dead_zone_with_few_samples_beyond_one_edge_stays_a_dead_zone(seed: int) -> None:
+    """A true dead zone with 30 % of ``x`` below it and only 3 % above it (24 samples): it is
+    one-sided by the tail count, and the saturation starts at its one-sided equivalent
+    (:func:`hbench.diagnose.classes.one_sided_saturations`, the edge at the band's lower edge),
+    but the samples above the band are evidence worth hundreds of score units, far beyond the
+    nesting margin: the class stays ``deadband``."""
+    rng = np.random.default_rng(seed)
+    x = rng.uniform(-1.0, 1.0, 800)
+    lo, hi = float(np.quantile(x, 0.30)), float(np.quantile(x, 0.97))
+    U = _graph(x, lo, hi) + 0.01 * rng.standard_normal(x.size)
+    fits = classes.fit_graph(x, U)
+    assert fits["deadband"].info["one_sided"]
+    assert abs(fits["saturation"].theta["u_max"] - lo) < 0.01
+    assert fits["deadband"].score > fits["saturation"].score + 100
+    assert nominal.choose_graph(fits) == "deadband"
+
+
+def test_one_sided_counts_the_samples_at_or_beyond_each_edge() -> None:
+    """800 samples: the tail count is 40. A band with exactly 40 samples at or above its upper
+    edge (and 400 below its lower one) is two-sided; with 39 it is one-sided; the two-sided
+    band's strength is the share of its variance off a straight line, as for every class."""
+    x = np.arange(800.0)
+    assert classes._tail_count(x.size) == 40
+    two = {"lower": 400.0, "upper": 760.0}  # x >= 760: 40 samples; x <= 400: 401
+    one = {"lower": 400.0, "upper": 761.0}  # x >= 761: 39 samples
+    assert not classes.one_sided(two, x)
+    assert classes.one_sided(one, x)
+    f = core.nl_one("deadband", x, two)
+    assert classes.strength("deadband", two, x) == pytest.approx(1 - np.corrcoef(f, x)[0, 1] ** 2)

@@ -89,7 +89,7 @@ def known_dynamics_classes(
             rss,
             n,
             2 + core.N_SHAPE[cls],
-            info={"strength": classes.strength(cls, theta, x) if theta else 0.0},
+            info=classes.shape_info(cls, theta, x),
         )
     base = out["linear"].bic
     for f in out.values():

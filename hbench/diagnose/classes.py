@@ -354,9 +354,13 @@ def fit_graph(
                 extra = deadband_partitions(x, U)
                 grid = {k: np.concatenate([v, extra[k]]) for k, v in grid.items()}
             theta, rss = _graph_best(cls, x, U, ok, grid)
+            seeds: list[dict[str, float]] = []
             if cls == "stiction" and "backlash" in fits:  # J = 0 is backlash: seed with it
                 th = fits["backlash"].theta
-                seed = {"S": th["width"], "J": 0.0, "d0": 1.0, "g0": th["g0"]}
+                seeds = [{"S": th["width"], "J": 0.0, "d0": 1.0, "g0": th["g0"]}]
+            if cls == "saturation" and fits.get("deadband") and fits["deadband"].theta:
+                seeds = one_sided_saturations(fits["deadband"].theta, x[ok])
+            for seed in seeds:
                 rs = float(
                     _graph_rss(
                         nl_batch(cls, x, {k: np.array([v]) for k, v in seed.items()})[:, ok], U[ok]
@@ -368,13 +372,53 @@ def fit_graph(
                 theta2, rss2 = _graph_best(cls, x, U, ok, fine_grid(cls, x, theta))
                 if rss2 < rss:
                     theta, rss = theta2, rss2
-        fits[cls] = ClassFit(
-            cls, theta, rss, n, 2 + N_SHAPE[cls], info={"strength": strength(cls, theta, x[ok])}
-        )
+        info = shape_info(cls, theta, x[ok])
+        fits[cls] = ClassFit(cls, theta, rss, n, 2 + N_SHAPE[cls], info=info)
     base = fits["linear"].bic if "linear" in fits else min(f.bic for f in fits.values())
     for f in fits.values():
         f.score = float((base - f.bic) / 2)
     return fits
+
+
+def one_sided_saturations(band: dict[str, float], x: np.ndarray) -> list[dict[str, float]]:
+    """The one-sided saturation a :func:`one_sided` dead zone ``band`` equals over ``x``, up to
+    an offset and the few samples beyond its far edge (none for a two-sided band):
+    ``x - clip(x, lower, upper)`` is ``min(x, lower) - lower`` where no ``x`` exceeds ``upper``
+    and ``max(x, upper) - upper`` where none is below ``lower``. The saturation fits start
+    there too, so that such a dead zone is tested against the saturation it nests."""
+    xs = np.asarray(x, float)[np.isfinite(x)]
+    m = _tail_count(xs.size)
+    lo, hi = float(band["lower"]), float(band["upper"])
+    out = []
+    # the saturation clips at least the candidates' tail share (no offset for a few extremes)
+    if np.sum(xs >= hi) < m <= np.sum(xs >= lo):
+        out.append({"u_min": -np.inf, "u_max": lo})
+    if np.sum(xs <= lo) < m <= np.sum(xs <= hi):
+        out.append({"u_min": hi, "u_max": np.inf})
+    return out
+
+
+def one_sided(theta: dict[str, float], x: np.ndarray) -> bool:
+    """Whether the dead zone ``theta`` leaves fewer than :data:`TAIL_SHARE` of the finite
+    samples of ``x`` at or beyond one of its edges (the share the quantile and gap candidates
+    keep on each side; the finer grid and the partition fits can move an edge past it). Over
+    the data such a band is a one-sided saturation at its other edge plus an offset
+    (:func:`one_sided_saturations`) but for those few samples, so the class rules ask it to
+    beat that saturation as a nested model
+    (:func:`hbench.diagnose.nominal.choose_graph`)."""
+    xs = np.asarray(x, float)[np.isfinite(x)]
+    beyond = min(np.sum(xs <= theta["lower"]), np.sum(xs >= theta["upper"]))
+    return bool(beyond < _tail_count(xs.size))
+
+
+def shape_info(cls: str, theta: dict[str, float], x: np.ndarray) -> dict[str, Any]:
+    """What the class rules read of a fitted map besides its score: ``strength``
+    (:func:`strength`) and, for a dead zone, ``one_sided`` (:func:`one_sided`)."""
+    shown = bool(theta) or cls == "linear"
+    info: dict[str, Any] = {"strength": strength(cls, theta, x) if shown else 0.0}
+    if cls == "deadband" and theta:
+        info["one_sided"] = one_sided(theta, x)
+    return info
 
 
 def strength(cls: str, theta: dict[str, float], x: np.ndarray) -> float:
@@ -581,6 +625,7 @@ def fit_equation_error(
     theta0: dict[str, float] | None = None,
     extra: np.ndarray | None = None,
     coarse: bool = False,
+    prefilter: np.ndarray | None = None,
 ) -> tuple[dict[str, float], float, np.ndarray]:
     """The class's parameters and an ARX linear part by equation error on ``idx``.
 
@@ -591,16 +636,23 @@ def fit_equation_error(
     given (the better start wins). Returns ``(theta, rss, [a, b, m, ...])``.
     """
 
-    def best_of(params: dict[str, np.ndarray]) -> tuple[dict[str, float], float, np.ndarray]:
-        F = nl_batch(cls, x, params)
+    if prefilter is not None:  # D(q) on y, the inputs and the shared regressors alike
+        y = signal.lfilter(prefilter, [1.0], np.asarray(y, float))
+        if extra is not None:
+            extra = signal.lfilter(prefilter, [1.0], np.asarray(extra, float), axis=0)
+
+    def inputs(F: np.ndarray) -> np.ndarray:
         if p > 1:
             F = np.repeat(F, p, axis=1)
-        rss, th = core.batch_arx(F, y, na, nb, delay, idx, extra)
+        return F if prefilter is None else signal.lfilter(prefilter, [1.0], F, axis=1)
+
+    def best_of(params: dict[str, np.ndarray]) -> tuple[dict[str, float], float, np.ndarray]:
+        rss, th = core.batch_arx(inputs(nl_batch(cls, x, params)), y, na, nb, delay, idx, extra)
         c = int(np.argmin(rss))
         return _take(params, c), float(rss[c]), th[c]
 
     if cls == "linear":
-        F = (np.repeat(x, p) if p > 1 else np.asarray(x, float))[None, :]
+        F = inputs(np.asarray(x, float)[None, :])
         rss, th = core.batch_arx(F, y, na, nb, delay, idx, extra)
         return {}, float(rss[0]), th[0]
     start = fine_grid(cls, x, theta0) if theta0 is not None else coarse_grid(cls, x)
@@ -751,3 +803,43 @@ def trim_outliers(rows: np.ndarray, w: np.ndarray, na: int) -> np.ndarray | None
             drop.update(range(int(t), int(t) + na + 1))
     keep = np.array([r not in drop for r in rows])
     return rows[keep]
+
+
+#: Order of the AR model of the equation error that prewhitens the class fits
+#: (:func:`prewhitener`).
+PREWHITEN_AR = 8
+
+
+def _whole_window(kept: np.ndarray, order: int) -> np.ndarray:
+    """Positions (of consecutive rows) whose ``order`` predecessors and themselves are all
+    ``kept``."""
+    ok = np.convolve(np.asarray(kept, float), np.ones(order + 1), mode="full")[: len(kept)]
+    sel = ok >= order + 1 - 1e-9
+    sel[:order] = False
+    return sel
+
+
+def prewhitener(w: np.ndarray, kept: np.ndarray, order: int = PREWHITEN_AR) -> np.ndarray:
+    """``D = [1, d1, .., d_order]``: an AR model of the equation error ``w`` (on consecutive
+    rows; ``kept`` marks the rows that are no outliers), by least squares over the rows whose
+    ``order`` predecessors are all kept, stabilised; ``[1]`` with too few such rows.
+
+    Equation error is the likelihood of white ``e`` in ``A y = B f(x) + e``; with noise of
+    other dynamics (Box-Jenkins, a changing plant, a missing pole) ``e`` is coloured, and the
+    half-BIC differences between classes count correlated rows as independent evidence.
+    Filtering ``y``, the inputs and the shared regressors by ``D(q) ~ 1 / H(q)`` (generalised
+    least squares; Ljung, System Identification, 1999, sec. 7.5) whitens ``e`` and makes the
+    differences likelihood ratios again."""
+    use = np.flatnonzero(_whole_window(kept, order))
+    if use.size <= 4 * order:
+        return np.array([1.0])
+    w = np.asarray(w, float)
+    R = np.stack([w[use - k] for k in range(1, order + 1)], axis=1)
+    th = np.linalg.lstsq(R, w[use], rcond=None)[0]
+    return core.stabilise(np.concatenate([[1.0], -th]))
+
+
+def prewhitened_rows(rows: np.ndarray, kept: np.ndarray, order: int) -> np.ndarray:
+    """The rows (of consecutive ``rows``) whose prefiltered equation holds only kept rows: a
+    row and its ``order`` predecessors all kept."""
+    return np.asarray(rows, int)[_whole_window(kept, order)]

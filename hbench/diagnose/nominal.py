@@ -64,6 +64,9 @@ MIN_STRENGTH_EQ = 0.001
 GRAPH_NEST_MARGIN = 2.0
 #: ... and show a slip jump of at least this share of S (J = 0 is backlash).
 MIN_JUMP_SHARE = 0.15
+#: p >= 2: the class fits through the dynamics are refitted on data prewhitened by an AR
+#: model of the best fit's equation error (:func:`equation_error_classes`).
+PREWHITEN = True
 #: p = 1: a class beats linear when its simulation fit improves by at least this (points of %).
 #: Tuned on the development loops of ``../shared/data/stictiongpt``: there the memory classes
 #: gained at most 1.6 points on records without stiction.
@@ -274,7 +277,10 @@ def linear_from_estimate(est: Estimate, p: int, delay_multiple: int = 0) -> core
 def choose_graph(fits: dict[str, classes.ClassFit], min_strength: float = MIN_STRENGTH) -> str:
     """The class on the (x, U) graph: the best score if it reaches :data:`GRAPH_MARGIN` and
     its map's strength ``min_strength``; stiction over backlash only by
-    :data:`GRAPH_NEST_MARGIN` more and with a slip jump ``J >= MIN_JUMP_SHARE S``."""
+    :data:`GRAPH_NEST_MARGIN` more and with a slip jump ``J >= MIN_JUMP_SHARE S``; a
+    one-sided dead zone (:func:`hbench.diagnose.classes.one_sided`) over the saturation only
+    by :data:`GRAPH_NEST_MARGIN` more (it nests the one-sided saturation but for the few
+    samples beyond its far edge)."""
     cands = {
         c: f.score
         for c, f in fits.items()
@@ -292,6 +298,12 @@ def choose_graph(fits: dict[str, classes.ClassFit], min_strength: float = MIN_ST
             bl = fits["backlash"]
             if bl.score >= GRAPH_MARGIN and bl.info.get("strength", 1.0) >= min_strength:
                 cands["backlash"] = bl.score
+    if "deadband" in cands and fits["deadband"].info.get("one_sided") and "saturation" in fits:
+        sat = fits["saturation"]
+        if cands["deadband"] < sat.score + GRAPH_NEST_MARGIN:
+            cands.pop("deadband")
+            if sat.score >= GRAPH_MARGIN and sat.info.get("strength", 1.0) >= min_strength:
+                cands["saturation"] = sat.score
     if not cands:
         return "linear"
     return max(cands, key=lambda c: cands[c])
@@ -352,7 +364,14 @@ def equation_error_classes(
     compared in one richer structure (:func:`hbench.diagnose.classes.selection_structure`: order,
     delay and a trend by BIC, so that no class is chosen for absorbing a misfit of the linear
     part), on the rows left once outliers of the best fit are dropped
-    (:func:`hbench.diagnose.classes.trim_outliers`). ``info["eq"]`` holds ``[a, b, m]`` of the
+    (:func:`hbench.diagnose.classes.trim_outliers`). With :data:`PREWHITEN` every class is then
+    refitted (from its white fit, on the finer grids) with ``y``, the inputs and the trend
+    filtered by ``D(q)``, an AR model of the best fit's equation error
+    (:func:`hbench.diagnose.classes.prewhitener`: generalised least squares), on the rows whose
+    filter window holds no outlier row; the scores are those fits'. The equation error is white
+    only under the nominal noise model; noise of other dynamics, a change of the plant or a
+    missing pole colour it, and the white criterion then counts correlated rows as
+    independent evidence. ``info["eq"]`` holds ``[a, b, m]`` of the
     class's parameters with the blind model's orders and delay (the nominal's linear part). The
     fits are on the fit part; ``which`` limits the classes (``linear`` is always fitted: the
     scores are relative to it).
@@ -360,7 +379,7 @@ def equation_error_classes(
     idx = ctx.fit_idx
     p = ctx.p
     xs = shifted(ctx.x, model.shift)
-    x_fit = ctx.x[: ctx.k_fit]
+    x_fit = xs[: ctx.k_fit]  # the fit part of the x the candidates are scaled to
     todo = [c for c in core.CLASSES if c in which or c == "linear"]
     inputs = [xs] + [
         core.nl_one(c, xs, graph[c].theta) for c in todo if c in graph and graph[c].theta
@@ -370,19 +389,28 @@ def equation_error_classes(
     )
 
     def fit_all(
-        st: classes.EqStructure, start: dict[str, dict[str, float] | None], coarse: bool
+        st: classes.EqStructure,
+        start: dict[str, dict[str, float] | None],
+        coarse: bool,
+        prefilter: np.ndarray | None = None,
     ) -> dict[str, tuple[dict[str, float], float, np.ndarray]]:
         out: dict[str, tuple[dict[str, float], float, np.ndarray]] = {}
         for cls in todo:
             args = (cls, xs, ctx.y, p, st.idx, st.na, st.nb, st.delay)
+            kw = {"extra": st.extra, "prefilter": prefilter}
             theta, rss, th = classes.fit_equation_error(
-                *args, theta0=start.get(cls), extra=st.extra, coarse=coarse
+                *args, theta0=start.get(cls), coarse=coarse, **kw
             )
+            seeds: list[dict[str, float]] = []
             if cls == "stiction" and out.get("backlash", ({},))[0]:
                 # stiction holds backlash as J = 0: start there too when it fits better
                 b = out["backlash"][0]
-                seed = {"S": b["width"], "J": 0.0, "d0": 1.0, "g0": b["g0"]}
-                t1, r1, h1 = classes.fit_equation_error(*args, theta0=seed, extra=st.extra)
+                seeds = [{"S": b["width"], "J": 0.0, "d0": 1.0, "g0": b["g0"]}]
+            if cls == "saturation" and out.get("deadband", ({},))[0]:
+                # a dead zone reaching past the data on one side is a one-sided saturation
+                seeds = classes.one_sided_saturations(out["deadband"][0], x_fit)
+            for seed in seeds:
+                t1, r1, h1 = classes.fit_equation_error(*args, theta0=seed, **kw)
                 if r1 < rss:
                     theta, rss, th = t1, r1, h1
             out[cls] = (theta, rss, th)
@@ -391,22 +419,30 @@ def equation_error_classes(
     start = {c: (graph[c].theta or None) if c in graph else None for c in todo}
     found = fit_all(st, start, True)
     whole = st
-    kept = None
-    for _ in range(2):  # a first fit that spikes bias flags more rows than the spikes' own
+
+    def best_residual() -> tuple[np.ndarray, np.ndarray]:
+        """``(rows, w)``: the equation error of the best fit so far on every row."""
         best = min(found, key=lambda c: found[c][1])
         theta = found[best][0]
-        rows, w = classes.eq_residual(
-            np.repeat(core.nl_one(best, xs, theta) if theta else xs, p),
-            ctx.y,
-            whole,
-            found[best][2],
-        )
+        u = np.repeat(core.nl_one(best, xs, theta) if theta else xs, p)
+        return classes.eq_residual(u, ctx.y, whole, found[best][2])
+
+    kept = None
+    for _ in range(2):  # a first fit that spikes bias flags more rows than the spikes' own
+        rows, w = best_residual()
         trimmed = classes.trim_outliers(rows, w, st.na)
         if trimmed is None or (kept is not None and np.array_equal(trimmed, kept)):
             break
         kept = trimmed
         st = classes.EqStructure(st.na, st.nb, st.delay, st.extra, kept)
         found = fit_all(st, {c: found[c][0] or None for c in todo}, True)
+    if PREWHITEN:  # generalised least squares: the same AR filter D(q) for every class
+        rows, w = best_residual()
+        kept_mask = np.isin(rows, st.idx)
+        d = classes.prewhitener(w, kept_mask)
+        rows_d = classes.prewhitened_rows(rows, kept_mask, d.size - 1)
+        st = classes.EqStructure(st.na, st.nb, st.delay, st.extra, rows_d)
+        found = fit_all(st, {c: found[c][0] or None for c in todo}, False, d)
     na, nb, delay = model.lin.na, max(model.lin.nb, 2), model.lin.delay
     out: dict[str, classes.ClassFit] = {}
     for cls, (theta, rss, _) in found.items():
@@ -419,9 +455,7 @@ def equation_error_classes(
             st.n,
             st.k_linear + core.N_SHAPE[cls],
             info={
-                "strength": classes.strength(cls, theta, x_fit)
-                if theta or cls == "linear"
-                else 0.0,
+                **classes.shape_info(cls, theta, x_fit),
                 "eq": eq[0],
                 "structure": {"na": st.na, "nb": st.nb, "delay": st.delay},
                 "outliers_dropped": 0 if kept is None else int(idx.size - kept.size),
@@ -782,7 +816,7 @@ def hammerstein_pem(
             theta0=model.theta if cls == model.cls and model.theta else None,
         )
         cf.k = 2 * lin_m.na + 1 + core.N_SHAPE[cls]
-        cf.info["strength"] = classes.strength(cls, cf.theta, ctx.x[: idx.size // ctx.p])
+        cf.info.update(classes.shape_info(cls, cf.theta, ctx.x[: idx.size // ctx.p]))
         fits[cls], lins[cls] = cf, oe
     base = fits["linear"].bic if "linear" in fits else min(f.bic for f in fits.values())
     for f in fits.values():

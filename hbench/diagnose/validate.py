@@ -295,9 +295,11 @@ def class_margin(chosen: str, fits: dict[str, Any]) -> tuple[float, str]:
 
     ``fits`` maps classes to :class:`~hbench.diagnose.classes.ClassFit` (or to bare scores).
     A stiction fit whose slip jump is below :data:`hbench.diagnose.nominal.MIN_JUMP_SHARE` of
-    its band is a backlash (``J = 0`` is backlash), not a rival of the backlash it nests.
-    Negative where a rule other than the score chose (stiction needs a slip jump, a class
-    needs its minimum score); ``(inf, "")`` with no other class."""
+    its band is a backlash (``J = 0`` is backlash), not a rival of the backlash it nests; a
+    one-sided dead zone (:func:`hbench.diagnose.classes.one_sided`) beside a chosen saturation
+    is not a rival of the saturation it nests either. Negative where a rule other than the
+    score chose (stiction needs a slip jump, a class needs its minimum score); ``(inf, "")``
+    with no other class."""
     scores: dict[str, float] = {}
     for c, f in fits.items():
         if isinstance(f, classes.ClassFit):
@@ -305,6 +307,8 @@ def class_margin(chosen: str, fits: dict[str, Any]) -> tuple[float, str]:
             if c == "stiction" and chosen == "backlash" and th:
                 if float(th.get("J", 0.0)) < nm.MIN_JUMP_SHARE * float(th.get("S", 0.0)):
                     continue
+            if c == "deadband" and chosen == "saturation" and f.info.get("one_sided"):
+                continue
             scores[c] = float(f.score)
         else:
             scores[c] = float(f)
