@@ -354,13 +354,7 @@ def fit_graph(
                 extra = deadband_partitions(x, U)
                 grid = {k: np.concatenate([v, extra[k]]) for k, v in grid.items()}
             theta, rss = _graph_best(cls, x, U, ok, grid)
-            seeds: list[dict[str, float]] = []
-            if cls == "stiction" and "backlash" in fits:  # J = 0 is backlash: seed with it
-                th = fits["backlash"].theta
-                seeds = [{"S": th["width"], "J": 0.0, "d0": 1.0, "g0": th["g0"]}]
-            if cls == "saturation" and fits.get("deadband") and fits["deadband"].theta:
-                seeds = one_sided_saturations(fits["deadband"].theta, x[ok])
-            for seed in seeds:
+            for seed in nested_starts(cls, {c: f.theta for c, f in fits.items()}, x[ok]):
                 rs = float(
                     _graph_rss(
                         nl_batch(cls, x, {k: np.array([v]) for k, v in seed.items()})[:, ok], U[ok]
@@ -378,6 +372,21 @@ def fit_graph(
     for f in fits.values():
         f.score = float((base - f.bic) / 2)
     return fits
+
+
+def nested_starts(
+    cls: str, fitted: dict[str, dict[str, float]], x: np.ndarray
+) -> list[dict[str, float]]:
+    """Starting points for ``cls`` at the fitted simpler class that it holds or that holds it:
+    stiction at the backlash it holds as ``J = 0``; saturation at the one-sided saturation a
+    :func:`one_sided` dead zone equals (:func:`one_sided_saturations`). ``fitted`` maps the
+    classes fitted so far to their parameters; ``x`` the samples the tail counts are over."""
+    if cls == "stiction" and fitted.get("backlash"):
+        b = fitted["backlash"]
+        return [{"S": b["width"], "J": 0.0, "d0": 1.0, "g0": b["g0"]}]
+    if cls == "saturation" and fitted.get("deadband"):
+        return one_sided_saturations(fitted["deadband"], x)
+    return []
 
 
 def one_sided_saturations(band: dict[str, float], x: np.ndarray) -> list[dict[str, float]]:

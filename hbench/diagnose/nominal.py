@@ -288,22 +288,23 @@ def choose_graph(fits: dict[str, classes.ClassFit], min_strength: float = MIN_ST
     }
     if not cands:
         return "linear"
-    if "stiction" in cands and "backlash" in fits:
+
+    def nested(richer: str, simpler: str, force: bool = False) -> None:
+        """The richer class stays only if it beats the simpler one it holds by the margin
+        (and ``force`` is false); otherwise the simpler one is the candidate in its place."""
+        if simpler not in fits:
+            return
+        alt = fits[simpler]
+        if force or cands[richer] < alt.score + GRAPH_NEST_MARGIN:
+            cands.pop(richer)
+            if alt.score >= GRAPH_MARGIN and alt.info.get("strength", 1.0) >= min_strength:
+                cands[simpler] = alt.score
+
+    if "stiction" in cands:
         th = fits["stiction"].theta
-        if (
-            cands["stiction"] < fits["backlash"].score + GRAPH_NEST_MARGIN
-            or th["J"] < MIN_JUMP_SHARE * th["S"]
-        ):
-            cands.pop("stiction")
-            bl = fits["backlash"]
-            if bl.score >= GRAPH_MARGIN and bl.info.get("strength", 1.0) >= min_strength:
-                cands["backlash"] = bl.score
-    if "deadband" in cands and fits["deadband"].info.get("one_sided") and "saturation" in fits:
-        sat = fits["saturation"]
-        if cands["deadband"] < sat.score + GRAPH_NEST_MARGIN:
-            cands.pop("deadband")
-            if sat.score >= GRAPH_MARGIN and sat.info.get("strength", 1.0) >= min_strength:
-                cands["saturation"] = sat.score
+        nested("stiction", "backlash", force=th["J"] < MIN_JUMP_SHARE * th["S"])
+    if "deadband" in cands and fits["deadband"].info.get("one_sided"):
+        nested("deadband", "saturation")
     if not cands:
         return "linear"
     return max(cands, key=lambda c: cands[c])
@@ -401,15 +402,9 @@ def equation_error_classes(
             theta, rss, th = classes.fit_equation_error(
                 *args, theta0=start.get(cls), coarse=coarse, **kw
             )
-            seeds: list[dict[str, float]] = []
-            if cls == "stiction" and out.get("backlash", ({},))[0]:
-                # stiction holds backlash as J = 0: start there too when it fits better
-                b = out["backlash"][0]
-                seeds = [{"S": b["width"], "J": 0.0, "d0": 1.0, "g0": b["g0"]}]
-            if cls == "saturation" and out.get("deadband", ({},))[0]:
-                # a dead zone reaching past the data on one side is a one-sided saturation
-                seeds = classes.one_sided_saturations(out["deadband"][0], x_fit)
-            for seed in seeds:
+            # stiction from the backlash it holds, saturation from a one-sided dead zone
+            fitted = {c: v[0] for c, v in out.items()}
+            for seed in classes.nested_starts(cls, fitted, x_fit):
                 t1, r1, h1 = classes.fit_equation_error(*args, theta0=seed, **kw)
                 if r1 < rss:
                     theta, rss, th = t1, r1, h1
@@ -490,7 +485,7 @@ def model_structure_fit(
     theta, rss, th = classes.fit_equation_error(cls, *args, theta0=start(cls))
     if cls == "stiction" and nested and start("backlash"):
         b, _, _ = classes.fit_equation_error("backlash", *args, theta0=start("backlash"))
-        seed = {"S": b["width"], "J": 0.0, "d0": 1.0, "g0": b["g0"]}
+        (seed,) = classes.nested_starts(cls, {"backlash": b}, xs)
         t1, r1, _ = classes.fit_equation_error(cls, *args, theta0=seed)
         if r1 < rss:
             theta, rss, th = classes.fit_equation_error(cls, *args, theta0=t1)
@@ -661,8 +656,7 @@ def fit_dynamic_classes(
     for cls in which:
         theta0 = None
         if cls == "stiction" and "backlash" in out:  # stiction holds backlash as J = 0
-            th = out["backlash"][0].theta
-            theta0 = {"S": th["width"], "J": 0.0, "d0": 1.0, "g0": th["g0"]}
+            (theta0,) = classes.nested_starts(cls, {"backlash": out["backlash"][0].theta}, ctx.x)
         out[cls] = classes.fit_dynamic(cls, ctx.x, ctx.y, ctx.p, idx, lin, theta0=theta0)
     return out
 
