@@ -22,9 +22,6 @@ skipped."""
 from __future__ import annotations
 
 import os
-import resource
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +29,7 @@ import pytest
 from hbench_sls import cross_relation_gram
 from pytest_benchmark.fixture import BenchmarkFixture
 
+from benchmarks.shell import cpu_children, hbench
 from hbench.ident import polyphase as pp
 from hbench.sim.simulate import Scenario, simulate
 from tests.test_sls import rows_gram
@@ -41,29 +39,8 @@ BASELINE = os.environ.get("HBENCH_BENCH_BASELINE")
 TARGETS = {100: 3.0, 1000: 4.0}
 
 
-def _cpu_children() -> float:
-    """CPU seconds (user + system) of the finished child processes of this one."""
-    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return usage.ru_utime + usage.ru_stime
-
-
-def _hbench(*args: str, tree: str | None = None) -> subprocess.CompletedProcess[str]:
-    env = dict(os.environ)
-    if tree is not None:  # another revision's sources ahead of this one's
-        env["PYTHONPATH"] = os.pathsep.join([tree, os.path.join(tree, "plugins")])
-    proc = subprocess.run(  # from the tree: ``-m`` puts the working directory first
-        [sys.executable, "-m", "hbench.cli", *args],
-        capture_output=True,
-        text=True,
-        env=env,
-        cwd=tree,
-    )
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    return proc
-
-
 def test_cli_startup(benchmark: BenchmarkFixture) -> None:
-    benchmark.pedantic(_hbench, args=("--help",), rounds=3, iterations=1)
+    benchmark.pedantic(hbench, args=("--help",), rounds=3, iterations=1)
     _seconds["startup"] = benchmark.stats.stats.mean
 
 
@@ -82,9 +59,9 @@ def test_reproduce(benchmark: BenchmarkFixture, tmp_path: Path, which: str, runs
     cpu: list[float] = []
 
     def run(*args, tree):
-        before = _cpu_children()
-        proc = _hbench(*args, tree=tree)
-        cpu.append(_cpu_children() - before)
+        before = cpu_children()
+        proc = hbench(*args, tree=tree)
+        cpu.append(cpu_children() - before)
         return proc
 
     load = os.getloadavg()[0]

@@ -369,6 +369,47 @@ def test_noise_shaping_is_scipys(model) -> None:
         np.testing.assert_array_equal(model.shape(e, plant), signal.lfilter(c, d, e, axis=-1))
 
 
+def _valve_inputs(rng: np.random.Generator, K: int) -> np.ndarray:
+    """A wandering controller output with repeated values (reversals at equal inputs)."""
+    return np.round(np.cumsum(rng.standard_normal(K)) * 0.3, 1)
+
+
+@needs_build
+@pytest.mark.parametrize("K", [1, 2, 57, 800])
+def test_diagnosis_actuator_maps_are_the_numpy_path(K: int) -> None:
+    """The diagnosis's batched backlash and stiction (every candidate, every start) give the
+    numpy path's numbers, nan inputs included."""
+    from hbench.diagnose import core
+
+    rng = np.random.default_rng(K)
+    x = _valve_inputs(rng, K)
+    if K > 2:
+        x[K // 2] = np.nan
+    C = 64
+    width, S = rng.uniform(0, 1.5, C), rng.uniform(0, 1.5, C)
+    J = S * rng.uniform(0, 1.3, C)  # J > S too: the rules still apply
+    g0, d0 = rng.uniform(0, 1, C), rng.choice([-1.0, 1.0], C)
+    got = core.backlash_batch(x, width, g0), core.stiction_batch(x, S, J, d0, g0)
+    with kernels.use("numpy"):
+        want = core.backlash_batch(x, width, g0), core.stiction_batch(x, S, J, d0, g0)
+    for g, w in zip(got, want, strict=True):
+        assert g.shape == (C, K)
+        np.testing.assert_array_equal(g, w)
+
+
+@needs_build
+def test_the_actuator_maps_leave_their_arguments_alone() -> None:
+    """The kernels update their state in copies: the caller's arrays are unchanged."""
+    rng = np.random.default_rng(5)
+    x = _valve_inputs(rng, 300)
+    S, J, h = np.full(4, 0.5), np.full(4, 0.2), np.full(4, 0.15)
+    d, x_ss, u = np.ones(4), np.full(4, x[0]), np.full(4, x[0] - 0.15)
+    before = [a.copy() for a in (x, S, J, h, d, x_ss, u)]
+    assert kernels.stiction_rows(x, x[0], S, J, h, d, x_ss, u) is not None
+    for a, b in zip((x, S, J, h, d, x_ss, u), before, strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_shapes_the_kernels_do_not_take_go_to_numpy_and_scipy() -> None:
     """One coefficient row for every run (numpy broadcasts it), no coefficient, a[0] = 0:
     the wrappers decline (``None``) and the numpy / scipy paths answer as they always did."""
@@ -378,6 +419,8 @@ def test_shapes_the_kernels_do_not_take_go_to_numpy_and_scipy() -> None:
     np.testing.assert_array_equal(pp.filtered_output(y, np.ones((1, 2)))[:, 1:], 2.0)
     assert kernels.lfilter_rows(np.ones((1, 2)), np.ones((3, 2)), y) is None
     assert kernels.lfilter_rows(np.ones((3, 2)), np.array([[0.0, 1.0]] * 3), y) is None
+    assert kernels.backlash_rows(np.ones((2, 3)), np.ones(2), np.ones(2)) is None  # one x only
+    assert kernels.stiction_rows(np.ones(3), 1.0, *(np.ones(2),) * 5, np.ones(3)) is None
     with pytest.raises(ValueError, match=r"a\[0\]"):
         pp.batched_lfilter(np.ones((3, 2)), np.array([[0.0, 1.0]] * 3), y)
 

@@ -21,6 +21,7 @@ import numpy as np
 from scipy import signal
 
 from hbench.diagnose.stats import lagged
+from hbench.numerics import kernels
 
 #: The nonlinearity classes of the contract, in order of complexity.
 CLASSES: tuple[str, ...] = ("linear", "backlash", "deadband", "saturation", "stiction")
@@ -56,10 +57,15 @@ def backlash_batch(x: np.ndarray, width: Any, g0: Any = 0.5) -> np.ndarray:
 
     ``u(k) = max(x(k) - w/2, min(x(k) + w/2, u(k-1)))`` with ``u(-1) = x(0) + (g0 - 1/2) w``
     (``g0 = 1/2``: centred on the first input, :class:`hbench.model.nonlinearities.Backlash` with
-    ``u0=None``; ``g0`` in [0, 1] spans the positions the valve may have started at).
+    ``u0=None``; ``g0`` in [0, 1] spans the positions the valve may have started at). Runs
+    compiled where the kernels are built (:func:`hbench.numerics.kernels.backlash_rows`, the
+    same numbers as the loop below).
     """
     x = np.asarray(x, float)
     step = BacklashStep(float(x[0]), width, g0)
+    out = kernels.backlash_rows(x, step.half, step.u)
+    if out is not None:
+        return out
     out = np.empty((step.half.size, x.size))
     for k in range(x.size):
         out[:, k] = step(x[k])
@@ -90,9 +96,14 @@ def stiction_batch(x: np.ndarray, S: Any, J: Any, d0: Any = 1.0, g0: Any = 0.5) 
     then lies in the stuck band ``[x_ss - S, x_ss + J]`` (for ``d0 = +1``) at the fraction
     ``g0`` from its upper end. ``d0 = 1, g0 = 1/2`` is the library's ``u0=None`` (at rest at
     ``x(0)``); the record does not say where the valve started, so a fit grids ``d0, g0``.
+    Runs compiled where the kernels are built (:func:`hbench.numerics.kernels.stiction_rows`,
+    the same numbers as the loop below).
     """
     x = np.asarray(x, float)
     step = StictionStep(float(x[0]), S, J, d0, g0)
+    out = kernels.stiction_rows(x, step.x_prev, step.S, step.J, step.h, step.d, step.x_ss, step.u)
+    if out is not None:
+        return out
     out = np.empty((step.S.size, x.size))
     for k in range(x.size):
         out[:, k] = step(x[k])
@@ -652,10 +663,14 @@ def batch_arx(
     if extra is not None:
         shared.append(np.asarray(extra, float).reshape(N, -1))
     Sh = np.hstack(shared)[idx]  # (n, na + 1 + k)
-    Z = []
-    for lag in range(delay + 1, delay + 1 + nb):
-        src = idx - lag
-        Z.append(np.where(src[None, :] >= 0, u[:, np.clip(src, 0, None)], 0.0))
+    # idx >= delay + nb, so every lagged row is a sample of u: views of u where the rows are
+    # consecutive (the usual case), a gather otherwise; row-major either way, which the
+    # products below run fastest on
+    window = idx.size > 0 and bool(np.all(np.diff(idx) == 1))
+    Z = [
+        u[:, idx[0] - lag : idx[0] - lag + idx.size] if window else np.take(u, idx - lag, axis=1)
+        for lag in range(delay + 1, delay + 1 + nb)
+    ]
     th, rss = _partitioned_ls(Z, Sh, yi, C)
     # reorder to a, b, m
     theta = np.concatenate([th[:, nb : nb + na], th[:, :nb], th[:, nb + na :]], axis=1)

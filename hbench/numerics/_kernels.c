@@ -592,6 +592,57 @@ HB_EXPORT int hb_inner_signal_ls(int64_t R, int64_t M, int64_t p, const double *
     return 0;
 }
 
+/*
+ * The actuator maps of hbench.diagnose.core for C candidate parameter sets over one input
+ * sequence x (K samples): out (C x K), row c the candidate's output. Each step does the numpy
+ * path's operations on candidate c (core.BacklashStep, core.StictionStep); the candidates are
+ * stepped together, sample after sample, so the loop over them vectorises.
+ *
+ * Backlash: u = max(x(k) - half, min(x(k) + half, u)), from u0.
+ */
+HB_EXPORT void hb_backlash_rows(int64_t C, int64_t K, const double *x, const double *half,
+                                const double *u0, double *u, double *out)
+{
+    for (int64_t c = 0; c < C; c++) u[c] = u0[c];
+    for (int64_t k = 0; k < K; k++) {
+        const double xk = x[k];
+        for (int64_t c = 0; c < C; c++) {
+            u[c] = np_max(xk - half[c], np_min(xk + half[c], u[c]));
+            out[c * K + k] = u[c];
+        }
+    }
+}
+
+/*
+ * Stiction (core.StictionStep): per candidate the band S, the jump J, the direction d, the
+ * half-width h = (S - J) / 2, the stick input x_ss and the output u, all candidates stuck at
+ * the start and the previous input x0; d, x_ss and u are updated in place, stuck in `stuck`.
+ */
+HB_EXPORT void hb_stiction_rows(int64_t C, int64_t K, const double *x, double x0,
+                                const double *S, const double *J, const double *h, double *d,
+                                double *x_ss, double *u, uint8_t *stuck, double *out)
+{
+    double x_prev = x0;
+    for (int64_t c = 0; c < C; c++) stuck[c] = 1;
+    for (int64_t k = 0; k < K; k++) {
+        const double xk = x[k];
+        const double sg = np_sign(xk - x_prev);
+        for (int64_t c = 0; c < C; c++) {
+            const int sticks = !stuck[c] && (sg != d[c]);
+            if (sticks) x_ss[c] = x_prev;
+            const int st = stuck[c] || sticks;
+            const double ahead = d[c] * (xk - x_ss[c]);
+            const int reverse = st && (-ahead > S[c]);
+            const int go_on = st && (ahead > J[c]);
+            if (reverse) d[c] = -d[c];
+            stuck[c] = st && !(reverse || go_on);
+            if (!stuck[c]) u[c] = xk - d[c] * h[c];
+            out[c * K + k] = u[c];
+        }
+        x_prev = xk;
+    }
+}
+
 /* A module Python can import (so that setuptools builds and installs it like any extension);
  * its functions are reached through ctypes. */
 static struct PyModuleDef kernels_module = {PyModuleDef_HEAD_INIT, "_kernels",

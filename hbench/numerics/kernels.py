@@ -30,6 +30,9 @@ Kernels:
 * :func:`inner_signal_ls`: eq. (27) of :func:`hbench.ident.polyphase.inner_signal_ls`, its normal
   equations formed and solved with LAPACK ``dptsv``'s arithmetic (reference ``dpttrf`` and
   ``dpttrs``, which the numpy path calls).
+* :func:`backlash_rows`, :func:`stiction_rows`: the diagnosis's actuator maps for a batch of
+  candidate parameters (:func:`hbench.diagnose.core.backlash_batch`,
+  :func:`hbench.diagnose.core.stiction_batch`), one step per input sample.
 """
 
 from __future__ import annotations
@@ -109,6 +112,10 @@ def _library() -> tuple[ctypes.CDLL | None, str]:
     lib.hb_lfilter_rows.argtypes = [*(_I64,) * 3, _F64, _F64, ctypes.c_void_p, _I64, _F64]
     lib.hb_inner_signal_ls.restype = ctypes.c_int
     lib.hb_inner_signal_ls.argtypes = [*(_I64,) * 3, _F64, *(_I64,) * 2, _U8, _F64, _F64, _F64]
+    lib.hb_backlash_rows.restype = None
+    lib.hb_backlash_rows.argtypes = [*(_I64,) * 2, *(_F64,) * 5]
+    lib.hb_stiction_rows.restype = None
+    lib.hb_stiction_rows.argtypes = [*(_I64,) * 2, _F64, ctypes.c_double, *(_F64,) * 6, _U8, _F64]
     return lib, ""
 
 
@@ -376,3 +383,55 @@ def inner_signal_ls_built(
     if rc != 0:
         raise RuntimeError(f"hb_inner_signal_ls failed with code {rc}")
     return U
+
+
+def _rows(x: np.ndarray, *cols: np.ndarray) -> tuple[np.ndarray, ...] | None:
+    """``x`` as a float64 vector and ``cols`` as float64 vectors of one length, fresh copies
+    (the kernels update some in place); ``None`` when the shapes are not those."""
+    x = np.asarray(x)
+    if x.ndim != 1 or x.dtype != np.float64:
+        return None
+    out = tuple(np.array(c, dtype=np.float64, order="C", copy=True).reshape(-1) for c in cols)
+    if not out or any(c.size != out[0].size for c in out):
+        return None
+    return (np.ascontiguousarray(x), *out)
+
+
+def backlash_rows(x: np.ndarray, half: np.ndarray, u0: np.ndarray) -> np.ndarray | None:
+    """The play operator of :func:`hbench.diagnose.core.backlash_batch` for every candidate
+    (half-width ``half[c]``, output ``u0[c]`` before the first input) over the inputs ``x``:
+    ``(C, K)``, compiled; ``None`` when the numpy path must run."""
+    lib = active_library()
+    args = None if lib is None else _rows(x, half, u0)
+    if args is None:
+        return None
+    x, half, u0 = args
+    C, K = half.size, x.size
+    out = np.empty((C, K))
+    lib.hb_backlash_rows(C, K, x, half, u0, np.empty(C), out)
+    return out
+
+
+def stiction_rows(
+    x: np.ndarray,
+    x0: float,
+    S: np.ndarray,
+    J: np.ndarray,
+    h: np.ndarray,
+    d: np.ndarray,
+    x_ss: np.ndarray,
+    u: np.ndarray,
+) -> np.ndarray | None:
+    """The stiction rules of :func:`hbench.diagnose.core.stiction_batch` for every candidate
+    (band ``S``, jump ``J``, half-width ``h = (S - J) / 2``; at the start stuck, direction ``d``,
+    stick input ``x_ss``, output ``u``; previous input ``x0``) over the inputs ``x``:
+    ``(C, K)``, compiled; ``None`` when the numpy path must run."""
+    lib = active_library()
+    args = None if lib is None else _rows(x, S, J, h, d, x_ss, u)
+    if args is None:
+        return None
+    x, S, J, h, d, x_ss, u = args
+    C, K = S.size, x.size
+    out = np.empty((C, K))
+    lib.hb_stiction_rows(C, K, x, float(x0), S, J, h, d, x_ss, u, np.empty(C, np.uint8), out)
+    return out
