@@ -388,6 +388,10 @@ def test_diagnosis_actuator_maps_are_the_numpy_path(K: int) -> None:
     C = 64
     width, S = rng.uniform(0, 1.5, C), rng.uniform(0, 1.5, C)
     J = S * rng.uniform(0, 1.3, C)  # J > S too: the rules still apply
+    # ties with the inputs' grid: J = 0 (backlash, where the fits start), S = J, S = 0, and
+    # S, J on the 0.1 grid of x, so that ahead == J and -ahead == S occur
+    S[:4], J[:4] = [0.3, 0.4, 0.0, 0.2], [0.0, 0.4, 0.0, 0.1]
+    width[:2] = [0.0, 0.2]
     g0, d0 = rng.uniform(0, 1, C), rng.choice([-1.0, 1.0], C)
     got = core.backlash_batch(x, width, g0), core.stiction_batch(x, S, J, d0, g0)
     with kernels.use("numpy"):

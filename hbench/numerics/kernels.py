@@ -394,7 +394,7 @@ def _rows(x: np.ndarray, *cols: np.ndarray) -> tuple[np.ndarray, ...] | None:
     out = tuple(np.array(c, dtype=np.float64, order="C", copy=True).reshape(-1) for c in cols)
     if not out or any(c.size != out[0].size for c in out):
         return None
-    return (np.ascontiguousarray(x), *out)
+    return (as_f64(x), *out)
 
 
 def backlash_rows(x: np.ndarray, half: np.ndarray, u0: np.ndarray) -> np.ndarray | None:
