@@ -538,6 +538,23 @@ def test_accuracy_interval_resamples_loops_not_records():
     assert np.isnan(accuracy_interval([], "evaluation")[0])
 
 
+def test_rate_gives_the_wilson_interval():
+    """The benchmark matrices' shares with their Wilson score intervals: the closed form
+    ``(p + z^2/2n -+ z sqrt(p(1-p)/n + z^2/4n^2)) / (1 + z^2/n)``, z = 1.96."""
+    from hbench.diagnose.calibrate import rate
+
+    def wilson(k, n, z=1.959963984540054):
+        p = k / n
+        mid, half = p + z * z / (2 * n), z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
+        return 100 * (mid - half) / (1 + z * z / n), 100 * (mid + half) / (1 + z * z / n)
+
+    for k, n in [(75, 105), (0, 15), (4, 15), (15, 15)]:
+        lo, hi = wilson(k, n)
+        assert rate(k, n) == f"{k} / {n} ({100 * k / n:.0f} %, 95 % interval {lo:.0f}-{hi:.0f} %)"
+    assert rate(0, 15).endswith("interval 0-20 %)")  # none of 15 still allows a fifth
+    assert rate(3, 0) == "3 / 0"
+
+
 def test_the_diagnosis_is_the_same_whatever_the_blas_thread_count() -> None:
     """One record of the benchmark loops (seed 5000, outside the calibration and held-out
     seeds; third-order plant, linear valve, no effect) diagnosed with the process's BLAS

@@ -113,6 +113,21 @@ def run(cases: Sequence[gen.Case | bc.BenchCase], jobs: int = 1) -> list[dict[st
     return parallel_map(run_case, cases, jobs)
 
 
+def rate(k: int, n: int, level: float = 0.95) -> str:
+    """``k / n (p %, 95 % interval lo-hi %)``: the share with its Wilson score interval
+    (``scipy.stats.binomtest``), the records taken as independent draws (each has its own
+    seed); ``k / n`` alone when ``n`` is 0."""
+    if n <= 0:
+        return f"{k} / {n}"
+    from scipy.stats import binomtest
+
+    ci = binomtest(int(k), int(n)).proportion_ci(confidence_level=level, method="wilson")
+    return (
+        f"{k} / {n} ({100 * k / n:.0f} %, {100 * level:g} % interval "
+        f"{100 * ci.low:.0f}-{100 * ci.high:.0f} %)"
+    )
+
+
 def confusion(
     rows: Iterable[dict[str, Any]], true_key: str, found_key: str, labels: Sequence[str]
 ) -> str:
@@ -127,7 +142,7 @@ def confusion(
             continue
         lines.append(t.ljust(w) + "".join(str(counts[(t, f)]).rjust(13) for f in found_labels))
     ok = sum(counts[(t, t)] for t in labels)
-    lines.append(f"correct: {ok} / {len(rows)}")
+    lines.append(f"correct: {rate(ok, len(rows))}")
     return "\n".join(lines)
 
 
@@ -136,7 +151,7 @@ def cause_label(effect: str) -> str:
 
 
 def report(rows: list[dict[str, Any]]) -> str:
-    """Both confusion matrices and the gains."""
+    """Both confusion matrices and the gains; each share with its 95 % interval (:func:`rate`)."""
     for r in rows:
         r["true_cause"] = cause_label(r["effect"])
     out = [
@@ -149,16 +164,16 @@ def report(rows: list[dict[str, Any]]) -> str:
     hidden = [r for r in rows if r["effect"] != "none" and "gain" in r]
     if hidden:
         pos = sum(r["gain"] > 0 for r in hidden)
-        out.append(f"\ngain > 0 on {pos} / {len(hidden)} records with a hidden effect")
+        out.append(f"\ngain > 0 on {rate(pos, len(hidden))} of the records with a hidden effect")
     nominal = [r for r in rows if r["effect"] == "none"]
     if nominal:
         named = sum(r["cause"] != "none" for r in nominal)
-        out.append(f"records without an effect given a cause: {named} / {len(nominal)}")
+        out.append(f"records without an effect given a cause: {rate(named, len(nominal))}")
     sure = [r for r in rows if r.get("confident")]
     if sure:
         right = sum(r["found_cls"] == r["cls"] for r in sure)
         out.append(
-            f"valve class where the diagnosis is confident: {right} / {len(sure)} right "
+            f"valve class where the diagnosis is confident: right on {rate(right, len(sure))} "
             f"({len(rows) - len(sure)} records not confident)"
         )
     secs = [r["seconds"] for r in rows if r.get("seconds")]
