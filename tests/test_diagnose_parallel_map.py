@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import warnings
 
+import pytest
 from threadpoolctl import threadpool_info, threadpool_limits
 
 from hbench.diagnose import benchmark_cases as bc
@@ -41,3 +42,29 @@ def test_a_class_ceiling_row_is_the_same_whatever_the_blas_thread_count() -> Non
             rows.append(parallel_map(run_one, [case], jobs=1)[0])
     assert rows[0]["scores"] == rows[1]["scores"]
     assert rows[0] == rows[1]
+
+
+def _square(v: int) -> int:
+    return v * v
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_on_result_sees_every_result_in_order(jobs: int) -> None:
+    seen: list[tuple[int, int, int]] = []
+    out = parallel_map(_square, [3, 1, 2], jobs=jobs, on_result=lambda *a: seen.append(a))
+    assert out == [9, 1, 4]
+    assert seen == [(1, 3, 9), (2, 3, 1), (3, 3, 4)]
+
+
+def test_the_progress_line_names_the_record_and_its_answer(capsys) -> None:
+    from hbench.diagnose.calibrate import say_row
+
+    row = {"seed": 20011, "plant": "paper", "p": 5, "cls": "backlash", "effect": "drift"}
+    say_row(2, 105, {**row, "found_cls": "backlash", "cause": "drift", "seconds": 3.24})
+    say_row(3, 105, {**row, "cause": "error", "error": "MethodError: no estimate"})
+    err = capsys.readouterr().err.splitlines()
+    assert err[0] == (
+        "[calibrate 2/105] seed 20011 paper p=5 backlash / drift: class backlash, cause drift "
+        "(3.2 s)"
+    )
+    assert err[1].endswith("backlash / drift: MethodError: no estimate")

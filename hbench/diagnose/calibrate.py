@@ -25,6 +25,7 @@ import numpy as np
 
 from hbench.diagnose import benchmark_cases as bc
 from hbench.diagnose import generator as gen
+from hbench.errors import tell
 from hbench.system import runtime
 
 T = TypeVar("T")
@@ -92,25 +93,58 @@ def run_case(case: gen.Case | bc.BenchCase) -> dict[str, Any]:
     return row
 
 
-def parallel_map(fn: Callable[[T], R], items: Sequence[T], jobs: int = 1) -> list[R]:
+def parallel_map(
+    fn: Callable[[T], R],
+    items: Sequence[T],
+    jobs: int = 1,
+    *,
+    on_result: Callable[[int, int, R], None] | None = None,
+) -> list[R]:
     """``[fn(item) for item in items]`` (in order), on ``jobs`` processes, every call with one
     BLAS thread: in this process under :func:`hbench.system.runtime.one_blas_thread`
     (restored on return), in the workers of :func:`hbench.bench.parallel.pool` (one thread
     for their life). A multi-threaded BLAS sums in another order on another thread count, so
     without the pin a row's last digits (and a score near a level, its verdict) would depend
-    on the machine's cores and on ``jobs``."""
+    on the machine's cores and on ``jobs``. ``on_result(done, total, result)`` is called in
+    this process for each result in order as it arrives (progress)."""
+    out: list[R] = []
+
+    def keep(result: R) -> None:
+        out.append(result)
+        if on_result is not None:
+            on_result(len(out), len(items), result)
+
     if jobs <= 1:
         with runtime.one_blas_thread():
-            return [fn(item) for item in items]
+            for item in items:
+                keep(fn(item))
+        return out
     from hbench.bench import parallel
 
     with parallel.pool(jobs) as pool:
-        return list(pool.map(fn, items, chunksize=1))
+        for result in pool.map(fn, items, chunksize=1):
+            keep(result)
+    return out
 
 
-def run(cases: Sequence[gen.Case | bc.BenchCase], jobs: int = 1) -> list[dict[str, Any]]:
-    """Rows for ``cases`` (in order), on ``jobs`` processes."""
-    return parallel_map(run_case, cases, jobs)
+def say_row(done: int, total: int, row: dict[str, Any]) -> None:
+    """A progress line on stderr for a diagnosed record (:func:`run_case`'s row)."""
+    what = row.get("error") or (
+        f"class {row.get('found_cls')}, cause {row.get('cause')} "
+        f"({row.get('seconds', float('nan')):.1f} s)"
+    )
+    tell(
+        f"[calibrate {done}/{total}] seed {row['seed']} {row['plant']} p={row['p']} "
+        f"{row['cls']} / {row['effect']}: {what}"
+    )
+
+
+def run(
+    cases: Sequence[gen.Case | bc.BenchCase], jobs: int = 1, progress: bool = False
+) -> list[dict[str, Any]]:
+    """Rows for ``cases`` (in order), on ``jobs`` processes; ``progress``: a line on stderr
+    per record (:func:`say_row`)."""
+    return parallel_map(run_case, cases, jobs, on_result=say_row if progress else None)
 
 
 def rate(k: int, n: int, level: float = 0.95) -> str:
@@ -199,7 +233,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             gen.draw_case(args.start + i, args.effect, gen.CLASSES[i % len(gen.CLASSES)])
             for i in range(args.n)
         ]
-    rows = run(cases, args.jobs)
+    rows = run(cases, args.jobs, progress=True)
     for r in rows:
         if args.verbose or r["cause"] != cause_label(r["effect"]) or r["found_cls"] != r["cls"]:
             stats = " ".join(
@@ -651,7 +685,7 @@ def main_bench(argv: Sequence[str] | None = None) -> int:
     if args.method:
         OPTIONS["method"] = args.method
     cases = bc.bench_grid(args.start, args.per_cell, tuple(args.plants.split(",")))
-    rows = run(cases, args.jobs)
+    rows = run(cases, args.jobs, progress=True)
     for r in rows:
         if r["cause"] != cause_label(r["effect"]) or r["found_cls"] != r["cls"]:
             print(
