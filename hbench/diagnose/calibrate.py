@@ -105,8 +105,9 @@ def parallel_map(
     (restored on return), in the workers of :func:`hbench.bench.parallel.pool` (one thread
     for their life). A multi-threaded BLAS sums in another order on another thread count, so
     without the pin a row's last digits (and a score near a level, its verdict) would depend
-    on the machine's cores and on ``jobs``. ``on_result(done, total, result)`` is called in
-    this process for each result in order as it arrives (progress)."""
+    on the machine's cores and on ``jobs``. ``on_result(done, total, result)`` (progress) is
+    called in this process for each result in input order, once it and every earlier one are
+    in; an exception it raises stops the run (the rows computed so far are not returned)."""
     out: list[R] = []
 
     def keep(result: R) -> None:
@@ -148,9 +149,9 @@ def run(
 
 
 def rate(k: int, n: int, level: float = 0.95) -> str:
-    """``k / n (p %, 95 % interval lo-hi %)``: the share with its Wilson score interval
-    (``scipy.stats.binomtest``), the records taken as independent draws (each has its own
-    seed); ``k / n`` alone when ``n`` is 0."""
+    """``k / n (p %, 95 % interval lo-hi %)``: the share with its ``level`` Wilson score
+    interval (``scipy.stats.binomtest``), the records taken as independent draws (each has
+    its own seed); ``k / n`` alone when ``n`` is 0."""
     if n <= 0:
         return f"{k} / {n}"
     from scipy.stats import binomtest
