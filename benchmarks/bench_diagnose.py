@@ -26,14 +26,13 @@ import numpy as np
 import pytest
 from pytest_benchmark.fixture import BenchmarkFixture
 
-from benchmarks.shell import cpu_children, hbench
+from benchmarks.shell import hbench, tree_of
 from hbench.diagnose import benchmark_cases as bc
 from hbench.diagnose import core
 from hbench.diagnose.validate import diagnose
 from hbench.numerics import kernels
 
 PATHS = ["c", "numpy"]
-BASELINE = os.environ.get("HBENCH_BENCH_BASELINE")
 STICTION_CASE = (13060, "none", "stiction", "paper")
 _seconds: dict[tuple[str, str], float] = {}
 
@@ -101,19 +100,11 @@ def stiction_csv(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def test_diagnose_cli(
     benchmark: BenchmarkFixture, stiction_csv: Path, tmp_path: Path, which: str
 ) -> None:
-    if which == "baseline" and not BASELINE:
-        pytest.skip("HBENCH_BENCH_BASELINE (another revision's source tree) is not set")
-    tree = BASELINE if which == "baseline" else None
+    tree = tree_of(which)
     cpu: list[float] = []
-
-    def run() -> Any:
-        before = cpu_children()
-        proc = hbench("diagnose", str(stiction_csv), "--json", str(tmp_path / "d.json"), tree=tree)
-        cpu.append(cpu_children() - before)
-        return proc
-
+    args = ("diagnose", str(stiction_csv), "--json", str(tmp_path / "d.json"))
     load = os.getloadavg()[0]
-    benchmark.pedantic(run, rounds=2, iterations=1)
+    benchmark.pedantic(hbench, args=args, kwargs={"tree": tree, "cpu": cpu}, rounds=2)
     assert (tmp_path / "d.json").exists()
     _seconds[("cli", which)] = benchmark.stats.stats.mean
     _seconds[("cli-cpu", which)] = sum(cpu) / len(cpu)

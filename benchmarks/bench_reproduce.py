@@ -29,13 +29,12 @@ import pytest
 from hbench_sls import cross_relation_gram
 from pytest_benchmark.fixture import BenchmarkFixture
 
-from benchmarks.shell import cpu_children, hbench
+from benchmarks.shell import hbench, tree_of
 from hbench.ident import polyphase as pp
 from hbench.sim.simulate import Scenario, simulate
 from tests.test_sls import rows_gram
 
 _seconds: dict[str, float] = {}
-BASELINE = os.environ.get("HBENCH_BENCH_BASELINE")
 TARGETS = {100: 3.0, 1000: 4.0}
 
 
@@ -47,25 +46,16 @@ def test_cli_startup(benchmark: BenchmarkFixture) -> None:
 @pytest.mark.parametrize("runs", sorted(TARGETS))
 @pytest.mark.parametrize("which", ["this", "baseline"])
 def test_reproduce(benchmark: BenchmarkFixture, tmp_path: Path, which: str, runs: int) -> None:
-    if which == "baseline" and not BASELINE:
-        pytest.skip("HBENCH_BENCH_BASELINE (another revision's source tree) is not set")
-    tree = BASELINE if which == "baseline" else None
+    tree = tree_of(which)
     counter = iter(range(100))
+    cpu: list[float] = []
 
     def setup():
         out = str(tmp_path / f"r{next(counter)}")
-        return ("reproduce", "--runs", str(runs), "--out", out), {"tree": tree}
-
-    cpu: list[float] = []
-
-    def run(*args, tree):
-        before = cpu_children()
-        proc = hbench(*args, tree=tree)
-        cpu.append(cpu_children() - before)
-        return proc
+        return ("reproduce", "--runs", str(runs), "--out", out), {"tree": tree, "cpu": cpu}
 
     load = os.getloadavg()[0]
-    proc = benchmark.pedantic(run, setup=setup, rounds=3, iterations=1)
+    proc = benchmark.pedantic(hbench, setup=setup, rounds=3, iterations=1)
     assert "scored cells" in proc.stdout
     wall = benchmark.stats.stats.mean
     key = f"{which}-{runs}"
