@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -85,3 +87,24 @@ def test_a_written_case_has_its_truth_beside_it(tmp_path) -> None:
     c = bc.draw_bench_case(10_050, "outliers", "deadband", "nmp")
     path = bc.write_bench_case(c, tmp_path)
     assert path.exists() and (tmp_path / f"{c.name}.truth.json").exists()
+
+
+def test_a_valve_at_rest_for_the_whole_record_is_redrawn() -> None:
+    # calibration seeds whose first draw of the stiction leaves the valve at rest throughout
+    # (P control, a sticking band wider than the excursions of x): the record would be noise only
+    for seed, effect, plant in [
+        (13062, "delay", "paper"),
+        (13068, "order", "paper"),
+        (11101, "delay", "nmp"),
+    ]:
+        c = bc.draw_bench_case(seed, effect, "stiction", plant)
+        assert bc.valve_moves(c)
+        stuck = replace(c, nl_params={"S": 50.0, "J": 25.0})
+        assert not bc.valve_moves(stuck)
+        assert np.ptp(bc.simulate_bench_case(c).y) > 0
+
+
+def test_a_seed_whose_valve_never_moves_is_refused(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(bc, "valve_moves", lambda case: False)
+    with pytest.raises(RuntimeError, match="stays at rest"):
+        bc.draw_bench_case(13062, "delay", "stiction", "paper")

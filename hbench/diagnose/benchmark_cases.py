@@ -24,7 +24,10 @@ A *benchmark case* (:class:`BenchCase`) is drawn from a seed (:func:`draw_bench_
   linear pilot run, scaled from the paper loop's ranges (:data:`R_X_PAPER`): backlash width
   0.02-0.2, stiction ``S`` 0.05-0.3 (at most half of ``r_x``) with ``J / S`` 0.1-1, dead zone
   0.05-0.2 wide, all on the paper loop's x scale; saturation clipping 5-30 % of the samples of
-  ``x``;
+  ``x``; redrawn until the valve moves in the record (:func:`valve_moves`): a valve held at
+  rest for the whole record (under P control a sticking band wider than the excursions of
+  ``x`` holds it there) leaves a record of noise alone, in which neither the class nor the
+  effect on the plant can be seen;
 * ONE effect, or none:
 
   - ``colored-noise``: noise with dynamics of its own (Box-Jenkins, ``C / D e`` with
@@ -47,7 +50,8 @@ and are never used to choose anything.
 from __future__ import annotations
 
 import copy
-from dataclasses import asdict, dataclass, field
+import warnings
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -70,7 +74,7 @@ from hbench.model.plants import BUILTIN as PLANTS
 from hbench.model.plants import ContinuousPlant
 from hbench.sim import scenarios
 from hbench.sim.records import Record
-from hbench.sim.simulate import Scenario, closed_loop_radius, simulate
+from hbench.sim.simulate import Scenario, ZeroOutputWarning, closed_loop_radius, simulate
 
 #: The plants of the benchmark (the paper's first).
 BENCH_PLANTS: tuple[str, ...] = ("paper", "first-order", "third-order", "nmp")
@@ -295,7 +299,7 @@ def draw_bench_case(
     # the nominal noise's level: the paper's sigma^2 on its plant, the paper's SNR elsewhere
     c, d = _noise_filter(base, loops[0])
     sigma = np.sqrt(sigma2) if plant == "paper" else s / paper_snr(sigma2) / filter_norm(c, d, 8000)
-    return BenchCase(
+    case = BenchCase(
         seed,
         effect,
         cls,
@@ -307,6 +311,37 @@ def draw_bench_case(
         effect_params=ep,
         noise_sigma=float(sigma),
     )
+    attempt = 0
+    while not valve_moves(case):
+        attempt += 1
+        if attempt == MAX_VALVE_DRAWS:
+            raise RuntimeError(
+                f"benchmark case {seed}: the {cls} valve stays at rest in {MAX_VALVE_DRAWS} "
+                "draws of its parameters"
+            )
+        # the valve's parameters alone, from a stream of their own: the rest of the case (and
+        # every case whose valve moves at its first draw) is as drawn
+        again = np.random.default_rng(np.random.SeedSequence([20261126, seed, attempt]))
+        case = replace(case, nl_params=_nl_params(cls, x, again))
+    return case
+
+
+#: Draws of the valve's parameters tried before :func:`draw_bench_case` gives up on a seed.
+MAX_VALVE_DRAWS = 20
+
+
+def valve_moves(case: BenchCase) -> bool:
+    """Whether the valve's output ``u`` changes over the record of ``case``: the valve run on
+    the record's ``x`` from the state the simulation starts it in (deterministic, so this is
+    the record's own ``u``)."""
+    if case.cls == "linear":
+        return True
+    valve = _scenario(case, case_plant(case), _nl_spec(case)).nonlinearity
+    with warnings.catch_warnings():  # a valve at rest is what this asks, not news
+        warnings.simplefilter("ignore", ZeroOutputWarning)
+        x = simulate_bench_case(case).x[:1]
+    u, _ = valve.apply(x, valve.initial_state(1))
+    return bool(np.ptp(u) > 0)
 
 
 def _nl_spec(case: BenchCase) -> dict[str, Any]:
