@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import replace
 
 import numpy as np
@@ -10,7 +11,7 @@ import pytest
 
 from hbench.diagnose import benchmark_cases as bc
 from hbench.diagnose.generator import CLASSES, EFFECTS
-from hbench.sim.simulate import closed_loop_radius
+from hbench.sim.simulate import ZeroOutputWarning, closed_loop_radius
 
 
 def test_seed_ranges_are_disjoint() -> None:
@@ -89,22 +90,28 @@ def test_a_written_case_has_its_truth_beside_it(tmp_path) -> None:
     assert path.exists() and (tmp_path / f"{c.name}.truth.json").exists()
 
 
-def test_a_valve_at_rest_for_the_whole_record_is_redrawn() -> None:
+def test_a_valve_at_rest_for_the_whole_record_is_redrawn(monkeypatch: pytest.MonkeyPatch) -> None:
     # calibration seeds whose first draw of the stiction leaves the valve at rest throughout
-    # (P control, a sticking band wider than the excursions of x): the record would be noise only
-    for seed, effect, plant in [
-        (13062, "delay", "paper"),
-        (13068, "order", "paper"),
-        (11101, "delay", "nmp"),
-    ]:
+    # (P control, a sticking band wider than the excursions of x): y would be noise only
+    seeds = [(13062, "delay", "paper"), (13068, "order", "paper"), (11101, "delay", "nmp")]
+    with monkeypatch.context() as m:
+        m.setattr(bc, "valve_moves", lambda case: True)
+        first = [bc.draw_bench_case(s, e, "stiction", p) for s, e, p in seeds]
+    for (seed, effect, plant), f in zip(seeds, first, strict=True):
+        assert not bc.valve_moves(f)
+        with pytest.warns(ZeroOutputWarning, match="never moves"):  # the simulation agrees
+            bc.simulate_bench_case(f)
         c = bc.draw_bench_case(seed, effect, "stiction", plant)
         assert bc.valve_moves(c)
-        stuck = replace(c, nl_params={"S": 50.0, "J": 25.0})
-        assert not bc.valve_moves(stuck)
-        assert np.ptp(bc.simulate_bench_case(c).y) > 0
+        assert c.nl_params != f.nl_params and replace(c, nl_params=f.nl_params) == f
+        with warnings.catch_warnings():  # the simulation's own check: its valve moves
+            warnings.simplefilter("error", ZeroOutputWarning)
+            bc.simulate_bench_case(c)
 
 
 def test_a_seed_whose_valve_never_moves_is_refused(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(bc, "valve_moves", lambda case: False)
+    calls = []
+    monkeypatch.setattr(bc, "valve_moves", lambda case: calls.append(case) or False)
     with pytest.raises(RuntimeError, match="stays at rest"):
         bc.draw_bench_case(13062, "delay", "stiction", "paper")
+    assert len(calls) == bc.MAX_VALVE_DRAWS

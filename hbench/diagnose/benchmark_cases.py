@@ -26,7 +26,7 @@ A *benchmark case* (:class:`BenchCase`) is drawn from a seed (:func:`draw_bench_
   0.05-0.2 wide, all on the paper loop's x scale; saturation clipping 5-30 % of the samples of
   ``x``; redrawn until the valve moves in the record (:func:`valve_moves`): a valve held at
   rest for the whole record (under P control a sticking band wider than the excursions of
-  ``x`` holds it there) leaves a record of noise alone, in which neither the class nor the
+  ``x`` holds it there) leaves an output of noise alone, in which neither the class nor the
   effect on the plant can be seen;
 * ONE effect, or none:
 
@@ -238,6 +238,10 @@ def _pilot(case: BenchCase, plant: ContinuousPlant) -> tuple[np.ndarray, np.ndar
     return rec.x[0], truth.y0[0]
 
 
+#: Draws of the valve's parameters tried before :func:`draw_bench_case` gives up on a seed.
+MAX_VALVE_DRAWS = 20
+
+
 def draw_bench_case(
     seed: int, effect: str | None = None, cls: str | None = None, plant: str | None = None
 ) -> BenchCase:
@@ -316,18 +320,14 @@ def draw_bench_case(
         attempt += 1
         if attempt == MAX_VALVE_DRAWS:
             raise RuntimeError(
-                f"benchmark case {seed}: the {cls} valve stays at rest in {MAX_VALVE_DRAWS} "
-                "draws of its parameters"
+                f"benchmark case {seed} ({plant}, {effect}): the {cls} valve stays at rest "
+                f"in {MAX_VALVE_DRAWS} draws of its parameters"
             )
         # the valve's parameters alone, from a stream of their own: the rest of the case (and
         # every case whose valve moves at its first draw) is as drawn
         again = np.random.default_rng(np.random.SeedSequence([20261126, seed, attempt]))
         case = replace(case, nl_params=_nl_params(cls, x, again))
     return case
-
-
-#: Draws of the valve's parameters tried before :func:`draw_bench_case` gives up on a seed.
-MAX_VALVE_DRAWS = 20
 
 
 def valve_moves(case: BenchCase) -> bool:
