@@ -17,6 +17,7 @@ hbench.diagnose.calibrate bench --start 20000 --per-cell 3 --plants paper``).
 from __future__ import annotations
 
 import json
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -146,3 +147,14 @@ def test_regression_on_the_paper_loop() -> None:
 #: nothing), order (colored-noise and delay both gain more than the order extension).
 REGRESSION_CLASSES = 7
 REGRESSION_CAUSES = 3
+
+
+def test_bench_chooses_the_cause_on_the_criterion_it_is_given(monkeypatch, capsys) -> None:
+    with pytest.raises(SystemExit) as exc:
+        calibrate.main_bench(["--criterion", "bogus"])
+    assert exc.value.code == 2 and "unknown validation criterion" in capsys.readouterr().err
+    monkeypatch.setitem(calibrate.OPTIONS, "criterion", "closed-loop")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        row = calibrate.run_case(bc.draw_bench_case(5000, "none", "linear", "third-order"))
+    assert row["criterion"] == "closed-loop"

@@ -39,8 +39,14 @@ COMPARED_HORIZONS: tuple[int, ...] = (0, 5, 10, 20, 40)
 
 #: Options of :func:`run_case` set by ``bench``: ``extend_all`` fits every extension, so that
 #: cause rules can be compared offline on the same records; ``method`` is the nominal's blind
-#: method. (Module state read by the worker processes, which fork after it is set.)
-OPTIONS: dict[str, Any] = {"extend_all": False, "method": "wang-lsm", "rule": "auto"}
+#: method; ``rule`` and ``criterion`` as ``hbench diagnose``'s options. (Module state read by
+#: the worker processes, which fork after it is set.)
+OPTIONS: dict[str, Any] = {
+    "extend_all": False,
+    "method": "wang-lsm",
+    "rule": "auto",
+    "criterion": "auto",
+}
 
 
 def run_case(case: gen.Case | bc.BenchCase) -> dict[str, Any]:
@@ -67,6 +73,7 @@ def run_case(case: gen.Case | bc.BenchCase) -> dict[str, Any]:
             extend_all=OPTIONS["extend_all"],
             method=OPTIONS["method"],
             rule=OPTIONS["rule"],
+            criterion=OPTIONS["criterion"],
         )
     except Exception as exc:
         row.update(cause="error", found_cls="error", error=f"{type(exc).__name__}: {exc}")
@@ -680,9 +687,22 @@ def main_bench(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--extend-all", action="store_true", help="fit every extension")
     ap.add_argument("--rule", default="auto", choices=("auto", "validation", "detectors"))
     ap.add_argument("--method", default=None, help="blind method of the nominal model")
+    ap.add_argument(
+        "--criterion",
+        default="auto",
+        help="validation criterion the cause is chosen on, as hbench diagnose's --criterion",
+    )
     args = ap.parse_args(argv)
+    from hbench.diagnose.validate import parse_criterion
+    from hbench.errors import InputError
+
+    try:
+        parse_criterion(args.criterion)  # a bad criterion: before the work
+    except InputError as exc:
+        ap.error(str(exc))
     OPTIONS["extend_all"] = bool(args.extend_all)
     OPTIONS["rule"] = args.rule
+    OPTIONS["criterion"] = args.criterion
     if args.method:
         OPTIONS["method"] = args.method
     cases = bc.bench_grid(args.start, args.per_cell, tuple(args.plants.split(",")))
