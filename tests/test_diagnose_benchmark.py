@@ -150,10 +150,16 @@ REGRESSION_CAUSES = 3
 
 
 def test_bench_chooses_the_cause_on_the_criterion_it_is_given(monkeypatch, capsys) -> None:
+    monkeypatch.setattr(calibrate, "OPTIONS", dict(calibrate.OPTIONS))
+    ran: list[Any] = []
+    monkeypatch.setattr(calibrate, "run", lambda cases, jobs, progress=False: ran.append(1) or [])
     with pytest.raises(SystemExit) as exc:
         calibrate.main_bench(["--criterion", "bogus"])
-    assert exc.value.code == 2 and "unknown validation criterion" in capsys.readouterr().err
-    monkeypatch.setitem(calibrate.OPTIONS, "criterion", "closed-loop")
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and "unknown validation criterion" in err
+    assert len(err.strip().splitlines()) == 1 and not ran  # one line, before any work
+    calibrate.main_bench(["--criterion", "closed-loop", "--per-cell", "1", "--plants", "paper"])
+    assert ran and calibrate.OPTIONS["criterion"] == "closed-loop"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         row = calibrate.run_case(bc.draw_bench_case(5000, "none", "linear", "third-order"))

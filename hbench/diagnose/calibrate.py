@@ -699,7 +699,7 @@ def main_bench(argv: Sequence[str] | None = None) -> int:
     try:
         parse_criterion(args.criterion)  # a bad criterion: before the work
     except InputError as exc:
-        ap.error(str(exc))
+        ap.exit(2, f"{ap.prog}: error: {exc}\n")
     OPTIONS["extend_all"] = bool(args.extend_all)
     OPTIONS["rule"] = args.rule
     OPTIONS["criterion"] = args.criterion
