@@ -16,7 +16,7 @@ The default (``auto``) is ``simulation``; the report also shows the ``prediction
 the dominant time constant of the nominal noise model ``1 / A`` in fast samples
 (:func:`dominant_horizon`; ``--criterion prediction`` chooses on it) and the ``closed-loop``
 fit (``--criterion closed-loop`` chooses on it). The closed-loop fit names the cause less often
-than the simulation on the benchmark loops' calibration seeds (76 against 83 of 140): a PI loop
+than the simulation on the benchmark loops' calibration seeds (the counts: the README): a PI loop
 rejects the drift extension's output ramp as the real loop rejected the drift, and a wrong model
 can make the re-simulated loop unstable. On a slow plant (the
 paper's: poles 0.97 and 0.99) the simulation error holds the realisation of the process noise
@@ -99,8 +99,8 @@ NONE_MIN_FIT = 0.0
 PARSIMONY: tuple[tuple[str, str, float], ...] = (("colored-noise", "order", 0.8),)
 #: The criterion ``auto`` chooses for a record that carries ``r`` (``p >= 2``): chosen on the
 #: benchmark loops' calibration seeds (paper loop from 10000, other plants from 11000, one
-#: record per cell), where the simulation named 83 of 140 causes and the closed-loop
-#: re-simulation 76 (``docs/experiments/diagnose-benchmark-loops.md``, section 4).
+#: record per cell), where the simulation names the cause more often than the closed-loop
+#: re-simulation (``docs/experiments/diagnose-benchmark-loops.md``, section 4).
 DEFAULT_CRITERION = "simulation"
 
 
