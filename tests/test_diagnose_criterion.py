@@ -134,15 +134,36 @@ def test_class_margin() -> None:
     }
     m, runner = va.class_margin("backlash", fits)
     assert runner == "deadband" and m == pytest.approx(0.8)
+    assert list(va.nested_rivals("backlash", fits)) == ["stiction"]  # the findings say why
+    assert "a backlash" in va.nested_rivals("backlash", fits)["stiction"]
+    assert va.nested_rivals("deadband", fits) == {}  # nested only beside the class it holds
     fits["stiction"].theta = {"S": 0.1, "J": 0.05}
     m, runner = va.class_margin("backlash", fits)
     assert runner == "stiction" and m == pytest.approx(0.02)
+    assert va.nested_rivals("backlash", fits) == {}
     m, runner = va.class_margin("backlash", {"linear": 0.0, "backlash": 40.0, "stiction": 30.0})
     assert runner == "stiction" and m == pytest.approx(0.25)
     m, runner = va.class_margin("linear", {"linear": 0.0, "backlash": 2.0, "stiction": 1.0})
     assert runner == "backlash" and m < 0  # chosen by a rule, not by the score
     m, runner = va.class_margin("linear", {"linear": 0.0})
     assert runner == "" and m == np.inf
+
+
+def test_findings_say_why_a_nested_class_is_no_rival() -> None:
+    """A record whose stiction fit has next to no slip jump beside the chosen backlash (the
+    benchmark's paper-loop record of seed 13044): the margin is to the next class, and the
+    first line says why stiction, with its score near backlash's, is not the runner-up."""
+    from hbench.diagnose import benchmark_cases as bc
+
+    record = bc.simulate_bench_case(bc.draw_bench_case(13044, "colored-noise", None, "paper"))
+    d = va.diagnose(record)
+    fits = d._final_class()[1]
+    assert d.nonlinearity["class"] == "backlash"
+    assert list(va.nested_rivals("backlash", fits)) == ["stiction"]
+    _, runner = va.class_margin("backlash", fits)
+    first = d.findings()[0]
+    assert f"over {runner}; stiction's fit (score " in first
+    assert "is no rival: its slip jump is below 15 % of its band: a backlash)" in first
 
 
 class _Probe(effects.Effect):

@@ -318,7 +318,8 @@ def render_html(d: Any, figs: dict[str, bytes]) -> str:
         "<style>body{font-family:sans-serif;max-width:1000px;margin:auto}"
         "table{border-collapse:collapse;font-size:13px}td,th{border:1px solid #ccc;"
         "padding:3px 6px;vertical-align:top}th{background:#eee}"
-        "tr.fires td{background:#fff3e0}tr.cause td{background:#ffe0e0}</style>",
+        "tr.fires td{background:#fff3e0}tr.cause td{background:#ffe0e0}"
+        "figure img{max-width:100%;height:auto}</style>",
         "</head><body>",
         f"<h1>Diagnosis of {esc(Path(str(d.source)).name)}</h1>",
         "<table>",

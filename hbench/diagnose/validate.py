@@ -232,11 +232,16 @@ class Diagnosis:
                 parts.append(f"{k} {v:.4g} (at {100 * (v - lo) / rx:.0f} % of the x range)")
             else:
                 parts.append(f"{k} {v:.4g} ({100 * v / rx:.1f} % of the x range)")
-        _, runner = class_margin(nl["class"], self._final_class()[1])
+        fits = self._final_class()[1]
+        _, runner = class_margin(nl["class"], fits)
+        nested = "".join(
+            f"; {c}'s fit (score {float(fits[c].score):.3g}) is no rival: {why}"
+            for c, why in nested_rivals(nl["class"], fits).items()
+        )
         if nl["confident"] or not runner:
             valve = f"valve: {nl['class']}" + (f", {', '.join(parts)}" if parts else "")
             if runner:
-                valve += f" (margin {nl['margin']:.2f} over {runner})"
+                valve += f" (margin {nl['margin']:.2f} over {runner}{nested})"
         else:
             valve = (
                 f"valve: {nl['class']} or {runner}: the data cannot tell (margin "
@@ -289,29 +294,39 @@ class Diagnosis:
 CONFIDENT_MARGIN = 0.10
 
 
+def nested_rivals(chosen: str, fits: dict[str, Any]) -> dict[str, str]:
+    """The classes of ``fits`` whose fit is the chosen class in another form, so no rival of
+    it, each with why: a stiction fit whose slip jump is below
+    :data:`hbench.diagnose.nominal.MIN_JUMP_SHARE` of its band beside a chosen backlash
+    (``J = 0`` is backlash); a one-sided dead zone (:func:`hbench.diagnose.classes.one_sided`)
+    beside a chosen saturation. Bare scores nest nothing."""
+    out: dict[str, str] = {}
+    f = fits.get("stiction")
+    if chosen == "backlash" and isinstance(f, classes.ClassFit) and f.theta:
+        if float(f.theta.get("J", 0.0)) < nm.MIN_JUMP_SHARE * float(f.theta.get("S", 0.0)):
+            out["stiction"] = (
+                f"its slip jump is below {100 * nm.MIN_JUMP_SHARE:g} % of its band: a backlash"
+            )
+    f = fits.get("deadband")
+    if chosen == "saturation" and isinstance(f, classes.ClassFit) and f.info.get("one_sided"):
+        out["deadband"] = "one-sided: a saturation"
+    return out
+
+
 def class_margin(chosen: str, fits: dict[str, Any]) -> tuple[float, str]:
     """The relative score gap between the chosen class and the best other one (the runner-up):
     ``(s_chosen - s_runner) / max(|s_chosen|, |s_runner|, 1)``, ``linear`` scoring 0.
 
     ``fits`` maps classes to :class:`~hbench.diagnose.classes.ClassFit` (or to bare scores).
-    A stiction fit whose slip jump is below :data:`hbench.diagnose.nominal.MIN_JUMP_SHARE` of
-    its band is a backlash (``J = 0`` is backlash), not a rival of the backlash it nests; a
-    one-sided dead zone (:func:`hbench.diagnose.classes.one_sided`) beside a chosen saturation
-    is not a rival of the saturation it nests either. Negative where a rule other than the
-    score chose (stiction needs a slip jump, a class needs its minimum score); ``(inf, "")``
-    with no other class."""
-    scores: dict[str, float] = {}
-    for c, f in fits.items():
-        if isinstance(f, classes.ClassFit):
-            th = f.theta
-            if c == "stiction" and chosen == "backlash" and th:
-                if float(th.get("J", 0.0)) < nm.MIN_JUMP_SHARE * float(th.get("S", 0.0)):
-                    continue
-            if c == "deadband" and chosen == "saturation" and f.info.get("one_sided"):
-                continue
-            scores[c] = float(f.score)
-        else:
-            scores[c] = float(f)
+    A class whose fit is the chosen one in another form (:func:`nested_rivals`) is no rival.
+    Negative where a rule other than the score chose (stiction needs a slip jump, a class needs
+    its minimum score); ``(inf, "")`` with no other class."""
+    nested = nested_rivals(chosen, fits)
+    scores = {
+        c: float(f.score) if isinstance(f, classes.ClassFit) else float(f)
+        for c, f in fits.items()
+        if c not in nested
+    }
     others = {c: v for c, v in scores.items() if c != chosen and np.isfinite(v)}
     if not others:
         return float("inf"), ""
