@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from hbench.diagnose import effects
+from hbench.diagnose import effects, nominal
 from hbench.diagnose import validate as va
 from hbench.errors import InputError
 from hbench.io.readers import write_record
@@ -163,7 +163,8 @@ def test_findings_say_why_a_nested_class_is_no_rival() -> None:
     _, runner = va.class_margin("backlash", fits)
     first = d.findings()[0]
     assert f"over {runner}; stiction's fit (score " in first
-    assert "is no rival: its slip jump is below 15 % of its band: a backlash)" in first
+    share = 100 * nominal.MIN_JUMP_SHARE
+    assert f"is no rival: its slip jump is below {share:g} % of its band: a backlash)" in first
 
 
 class _Probe(effects.Effect):

@@ -556,9 +556,10 @@ def draw_loop_case(
     * ``level``: integrating, ``k`` per sample; delay 0-2; ``ti`` 20-80, ``kc k`` 0.02-0.1.
     * ``slow``: first order, time constant 20-60 samples, delay 2-6; ``ti`` 15-60, ``kc k``
       0.3-1.
-    * valves: ``stiction`` ``S`` 1-6 % and ``J / S`` 0.15-1 (below ``nominal.MIN_JUMP_SHARE``
-      stiction is a dead band); ``backlash`` width 1-5 %; ``deadband`` of 1-3 % either side of
-      the operating point; ``saturation`` at 1-5 % beyond the operating point on one side.
+    * valves: ``stiction`` ``S`` 1-6 % and ``J / S`` 0.15-1 (with a slip jump below
+      ``nominal.MIN_JUMP_SHARE S`` the chooser calls a stiction fit a backlash); ``backlash``
+      width 1-5 %; ``deadband`` of 1-3 % either side of the operating point; ``saturation``
+      at 1-5 % beyond the operating point on one side.
     * disturbances: ``load``: AR(1) at the process input, pole 0.9-0.99, standard deviation
       1-4 % of valve; ``setpoint``: steps every 50-250 samples of 0.5-3 % of valve equivalent
       plus a ramp; ``external``: a sinusoid of period 20-120 samples, amplitude 1-4 % of valve,
