@@ -388,7 +388,8 @@ def test_json_follows_the_contract(run_cli: RunCli, nominal_file: Path, tmp_path
     assert d["gain"] == pytest.approx(d["extended_fit"] - d["baseline_fit"], abs=1e-5)
     html = (tmp_path / "rep" / "report.html").read_text()
     assert "data:image/png;base64," in html and "<img" in html and "src='fig_" not in html
-    # the 200-dpi figures are wider than the page's column: scaled down to it, not cut off
+    # the figures (150 dpi, up to 9 in wide: 1350 px) are wider than the page's 1000-px
+    # column: scaled down to it, not cut off
     assert "figure img{max-width:100%;height:auto}" in html
     md = (tmp_path / "rep" / "report.md").read_text()
     assert "## Evidence" in md

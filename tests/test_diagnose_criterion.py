@@ -150,21 +150,59 @@ def test_class_margin() -> None:
 
 
 def test_findings_say_why_a_nested_class_is_no_rival() -> None:
-    """A record whose stiction fit has next to no slip jump beside the chosen backlash (the
-    benchmark's paper-loop record of seed 13044): the margin is to the next class, and the
-    first line says why stiction, with its score near backlash's, is not the runner-up."""
+    """A backlash record (the benchmark's paper-loop record of seed 13014, no effect) whose
+    stiction fit scores about as much as the backlash but has next to no slip jump: the margin
+    is to the next class, and the first line gives both scores and says why stiction is not
+    the runner-up."""
     from hbench.diagnose import benchmark_cases as bc
 
-    record = bc.simulate_bench_case(bc.draw_bench_case(13044, "colored-noise", None, "paper"))
-    d = va.diagnose(record)
+    case = bc.draw_bench_case(13014, "none", "backlash", "paper")
+    d = va.diagnose(bc.simulate_bench_case(case))
     fits = d._final_class()[1]
     assert d.nonlinearity["class"] == "backlash"
     assert list(va.nested_rivals("backlash", fits)) == ["stiction"]
     _, runner = va.class_margin("backlash", fits)
+    assert runner not in ("", "stiction")
     first = d.findings()[0]
-    assert f"over {runner}; stiction's fit (score " in first
     share = 100 * nominal.MIN_JUMP_SHARE
-    assert f"is no rival: its slip jump is below {share:g} % of its band: a backlash)" in first
+    score = f"{fits['stiction'].score:.1f}, backlash's {fits['backlash'].score:.1f}"
+    assert f"over {runner}; stiction's fit (score {score}) is no rival: its slip jump, " in first
+    assert f"% of its band, is below {share:g} %: a backlash)" in first
+
+
+def test_the_slip_jump_rule_is_one_rule_for_the_chooser_and_the_margin() -> None:
+    """A stiction fit with a slip jump of 12 % of its band is a stiction (the benchmark draws
+    J / S from 0.1): the graph chooser takes it over a backlash it beats, and beside a chosen
+    backlash it is a rival; at 9.9 % it is the backlash it nests in both."""
+    from hbench.diagnose.classes import ClassFit
+
+    assert nominal.MIN_JUMP_SHARE == 0.1  # the lower end of benchmark_cases' J / S
+    for jr, chosen, nested in ((0.12, "stiction", set()), (0.099, "backlash", {"stiction"})):
+        fits = {
+            "linear": ClassFit("linear", {}, 1.0, 100, 2, score=0.0),
+            "backlash": ClassFit("backlash", {"width": 0.1}, 1.0, 100, 3, score=50.0),
+            "stiction": ClassFit("stiction", {"S": 0.1, "J": 0.1 * jr}, 1.0, 100, 4, score=60.0),
+        }
+        assert nominal.choose_graph(fits) == chosen
+        assert set(va.nested_rivals("backlash", fits)) == nested
+
+
+def test_a_one_sided_dead_zone_is_no_rival_of_the_saturation_it_nests() -> None:
+    from hbench.diagnose.classes import ClassFit
+
+    fits = {
+        "linear": ClassFit("linear", {}, 1.0, 100, 2, score=0.0),
+        "saturation": ClassFit("saturation", {}, 1.0, 100, 4, score=30.0),
+        "deadband": ClassFit("deadband", {}, 1.0, 100, 4, score=31.0, info={"one_sided": True}),
+    }
+    assert list(va.nested_rivals("saturation", fits)) == ["deadband"]
+    margin, runner = va.class_margin("saturation", fits)
+    assert runner == "linear" and margin == pytest.approx(1.0)
+    fits["deadband"].info = {}  # two-sided: a rival
+    assert va.nested_rivals("saturation", fits) == {}
+    assert va.class_margin("saturation", fits)[1] == "deadband"
+    # bare scores nest nothing
+    assert va.nested_rivals("backlash", {"backlash": 5.0, "stiction": 4.0}) == {}
 
 
 class _Probe(effects.Effect):

@@ -556,10 +556,10 @@ def draw_loop_case(
     * ``level``: integrating, ``k`` per sample; delay 0-2; ``ti`` 20-80, ``kc k`` 0.02-0.1.
     * ``slow``: first order, time constant 20-60 samples, delay 2-6; ``ti`` 15-60, ``kc k``
       0.3-1.
-    * valves: ``stiction`` ``S`` 1-6 % and ``J / S`` 0.15-1 (with a slip jump below
-      ``nominal.MIN_JUMP_SHARE S`` the chooser calls a stiction fit a backlash); ``backlash``
-      width 1-5 %; ``deadband`` of 1-3 % either side of the operating point; ``saturation``
-      at 1-5 % beyond the operating point on one side.
+    * valves: ``stiction`` ``S`` 1-6 % and ``J / S`` 0.15-1 (clear of
+      ``nominal.MIN_JUMP_SHARE``, 0.1, below which the chooser calls a stiction fit a
+      backlash); ``backlash`` width 1-5 %; ``deadband`` of 1-3 % either side of the operating
+      point; ``saturation`` at 1-5 % beyond the operating point on one side.
     * disturbances: ``load``: AR(1) at the process input, pole 0.9-0.99, standard deviation
       1-4 % of valve; ``setpoint``: steps every 50-250 samples of 0.5-3 % of valve equivalent
       plus a ramp; ``external``: a sinusoid of period 20-120 samples, amplitude 1-4 % of valve,
@@ -600,7 +600,8 @@ def draw_loop_case(
         valve: dict[str, float] = {}
     elif cls == "stiction":
         S = float(rng.uniform(1.0, 6.0))
-        # J >= 0.15 S: with no slip jump stiction is a dead band (backlash), scored as such
+        # J >= 0.15 S, clear of nominal.MIN_JUMP_SHARE (0.1): with no slip jump stiction is a
+        # dead band (backlash), scored as such
         valve = {"S": S, "J": S * float(rng.uniform(0.15, 1.0))}
     elif cls == "backlash":
         valve = {"d": float(rng.uniform(1.0, 5.0))}

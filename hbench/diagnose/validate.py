@@ -16,9 +16,9 @@ The default (``auto``) is ``simulation``; the report also shows the ``prediction
 the dominant time constant of the nominal noise model ``1 / A`` in fast samples
 (:func:`dominant_horizon`; ``--criterion prediction`` chooses on it) and the ``closed-loop``
 fit (``--criterion closed-loop`` chooses on it). The closed-loop fit names the cause less often
-than the simulation on the benchmark loops' calibration seeds (the counts: the README): a PI loop
-rejects the drift extension's output ramp as the real loop rejected the drift, and a wrong model
-can make the re-simulated loop unstable. On a slow plant (the
+than the simulation on the benchmark loops' calibration seeds (README.md's `--criterion` item
+gives the counts): a PI loop rejects the drift extension's output ramp as the real loop
+rejected the drift, and a wrong model can make the re-simulated loop unstable. On a slow plant (the
 paper's: poles 0.97 and 0.99) the simulation error holds the realisation of the process noise
 that the loop has cancelled, integrated by the plant's poles; the prediction removes what the
 noise model explains up to ``t - K``. Yet for naming the cause the simulation is the better
@@ -234,19 +234,24 @@ class Diagnosis:
                 parts.append(f"{k} {v:.4g} ({100 * v / rx:.1f} % of the x range)")
         fits = self._final_class()[1]
         _, runner = class_margin(nl["class"], fits)
-        nested = "".join(
-            f"; {c}'s fit (score {float(fits[c].score):.3g}) is no rival: {why}"
+        own = fits.get(nl["class"])
+        own_score = float(own.score) if isinstance(own, classes.ClassFit) else 0.0
+        nested = "; ".join(
+            f"{c}'s fit (score {float(fits[c].score):.1f}, {nl['class']}'s {own_score:.1f}) is "
+            f"no rival: {why}"
             for c, why in nested_rivals(nl["class"], fits).items()
         )
         if nl["confident"] or not runner:
             valve = f"valve: {nl['class']}" + (f", {', '.join(parts)}" if parts else "")
-            if runner:
-                valve += f" (margin {nl['margin']:.2f} over {runner}{nested})"
+            said = [f"margin {nl['margin']:.2f} over {runner}"] if runner else []
+            if said or nested:
+                valve += f" ({'; '.join(said + ([nested] if nested else []))})"
         else:
             valve = (
                 f"valve: {nl['class']} or {runner}: the data cannot tell (margin "
                 f"{nl['margin']:.2f}, below {CONFIDENT_MARGIN:g}); as {nl['class']}: "
                 + (", ".join(parts) if parts else "no parameters")
+                + (f"; {nested}" if nested else "")
             )
         crit = self.criterion
         cause = f"cause: {self.cause}"
@@ -303,13 +308,15 @@ def nested_rivals(chosen: str, fits: dict[str, Any]) -> dict[str, str]:
     out: dict[str, str] = {}
     f = fits.get("stiction")
     if chosen == "backlash" and isinstance(f, classes.ClassFit) and f.theta:
-        if float(f.theta.get("J", 0.0)) < nm.MIN_JUMP_SHARE * float(f.theta.get("S", 0.0)):
+        J, S = float(f.theta.get("J", 0.0)), float(f.theta.get("S", 0.0))
+        if S > 0 and J < nm.MIN_JUMP_SHARE * S:
             out["stiction"] = (
-                f"its slip jump is below {100 * nm.MIN_JUMP_SHARE:g} % of its band: a backlash"
+                f"its slip jump, {100 * J / S:.1f} % of its band, is below "
+                f"{100 * nm.MIN_JUMP_SHARE:g} %: a backlash"
             )
     f = fits.get("deadband")
     if chosen == "saturation" and isinstance(f, classes.ClassFit) and f.info.get("one_sided"):
-        out["deadband"] = "one-sided: a saturation"
+        out["deadband"] = "next to no sample beyond one of its edges: the saturation it nests"
     return out
 
 
