@@ -4,16 +4,18 @@ coloured-noise records, under variants of the record and of the chooser.
 Calibration seeds 17000-17005, each with every valve class (30 records of the paper loop's
 ``colored-noise`` cell of :func:`hbench.diagnose.benchmark_cases.draw_bench_case`; the same
 seeds' ``none`` records where a variant's cost is measured). Prints one Markdown row per
-variant: the class right, and how many records were called ``backlash``.
+variant: the class right, and how many records were called ``backlash``; then the number of
+poles the blind model and the class comparison's structure take on the records as generated.
 
     python docs/experiments/coloured_noise_class.py [--jobs 2]
 
-Takes about 4 minutes on two cores.
+Takes about 6 minutes on two cores.
 """
 
 from __future__ import annotations
 
 import argparse
+from collections import Counter
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 from typing import Any
@@ -38,6 +40,7 @@ VARIANTS: dict[str, tuple[str, str]] = {
     "d1 = 0.5": ("colored-noise", "the noise's pole at 0.5"),
     "prewhitening AR(30)": ("colored-noise", "the class fits' prewhitener of order 30"),
     "prewhitening AR(150)": ("colored-noise", "the class fits' prewhitener of order 150"),
+    "at least two poles": ("colored-noise", "the class comparison's structure with na >= 2"),
     "output error": ("colored-noise", "classes by output error in the nominal's structure"),
     "Box-Jenkins, AR(8) noise": (
         "colored-noise",
@@ -45,6 +48,7 @@ VARIANTS: dict[str, tuple[str, str]] = {
     ),
     "none: as generated": ("none", "the same seeds without an effect"),
     "none: nominal noise x 10": ("none", "the nominal noise (e / A) ten times larger"),
+    "none: at least two poles": ("none", "the class comparison's na >= 2, no effect"),
     "none: output error": ("none", "classes by output error, no effect"),
     "none: Box-Jenkins, AR(8) noise": ("none", "classes by prediction error, no effect"),
 }
@@ -69,7 +73,9 @@ def record(case: bc.BenchCase, d1: float | None = None, outside: bool = False) -
     return replace(rec, y=rec.y + add[None, :]) if outside else rec
 
 
-def chosen_class(variant: str, seed: int, cls: str) -> str:
+def chosen_class(variant: str, seed: int, cls: str) -> tuple[str, int, int]:
+    """The class chosen under ``variant``, and the poles of the blind model and of the
+    structure the classes are compared in."""
     effect = VARIANTS[variant][0]
     case = bc.draw_bench_case(seed, effect, cls, "paper")
     if variant == "none: nominal noise x 10":
@@ -80,13 +86,20 @@ def chosen_class(variant: str, seed: int, cls: str) -> str:
     if order is not None:  # the prewhitener's order (bound as its default at definition)
         plain = classes.prewhitener
         classes.prewhitener = lambda w, kept, order=order: plain(w, kept, order)
+    two = variant.endswith("at least two poles")
+    if two:
+        na_select = classes.NA_SELECT
+        classes.NA_SELECT = tuple(n for n in na_select if n >= 2)
     try:
         d = diagnose(rec, source=case.name)
     finally:
         if order is not None:
             classes.prewhitener = plain
+        if two:
+            classes.NA_SELECT = na_select
+    poles = (d.nominal.model.lin.na, d.nominal.class_fits["linear"].info["structure"]["na"])
     if not variant.endswith(("output error", "AR(8) noise")):
-        return str(d.nonlinearity["class"])
+        return str(d.nonlinearity["class"]), *poles
     ctx, nom = d.ctx, d.nominal
     idx = ctx.fit_idx
     prefilter = None
@@ -94,12 +107,12 @@ def chosen_class(variant: str, seed: int, cls: str) -> str:
         res = np.asarray(nom.resid)[idx]
         prefilter = classes.prewhitener(res, np.ones(res.size, bool), 8)
     _, _, chosen = nm.hammerstein_pem(ctx, nom.model, idx, prefilter=prefilter)
-    return str(chosen)
+    return str(chosen), *poles
 
 
-def _one(task: tuple[str, int, str]) -> tuple[str, int, str, str]:
+def _one(task: tuple[str, int, str]) -> tuple[str, int, str, str, int, int]:
     variant, seed, cls = task
-    return variant, seed, cls, chosen_class(variant, seed, cls)
+    return variant, seed, cls, *chosen_class(variant, seed, cls)
 
 
 def main(argv: Any = None) -> None:
@@ -116,6 +129,12 @@ def main(argv: Any = None) -> None:
         right = sum(r[2] == r[3] for r in mine)
         backlash = sum(r[3] == "backlash" for r in mine)
         print(f"| {v} ({words}) | {len(mine)} | {right} | {backlash} |")
+    print("\nPoles (na) of the blind model and of the class comparison's structure, as generated:")
+    for v in ("as generated", "none: as generated"):
+        mine = [r for r in rows if r[0] == v]
+        blind = dict(sorted(Counter(r[4] for r in mine).items()))
+        compared = dict(sorted(Counter(r[5] for r in mine).items()))
+        print(f"{v}: blind {blind}, compared {compared}")
 
 
 if __name__ == "__main__":
