@@ -405,6 +405,25 @@ def test_json_follows_the_contract(run_cli: RunCli, nominal_file: Path, tmp_path
         assert f"fig_{name}.png" in md
 
 
+@pytest.mark.parametrize("cause", ["none", "unexplained", "drift"])
+def test_simulation_caption_names_an_extended_model_only_with_a_cause(cause: str) -> None:
+    from types import SimpleNamespace
+
+    from hbench.diagnose.report import FIGURES, caption
+
+    d = SimpleNamespace(cause=cause)
+    text = dict(FIGURES)["simulation"]
+    got = caption(d, "simulation", text)
+    if cause == "drift":  # the figure draws the extended model beside the nominal
+        assert got == text and "extended model" in got
+    else:
+        assert got != text and f"no extended model: the cause is {cause}" in got
+    assert (
+        caption(d, "residual_time", dict(FIGURES)["residual_time"])
+        == dict(FIGURES)["residual_time"]
+    )
+
+
 def test_json_to_stdout(run_cli: RunCli, nominal_file: Path) -> None:
     status, stdout, _ = run_cli(["diagnose", str(nominal_file), "--json", "-"])
     assert status == 0

@@ -29,6 +29,17 @@ FIGURES: tuple[tuple[str, str], ...] = (
 )
 
 
+def caption(d: Any, name: str, text: str) -> str:
+    """The caption of figure ``name`` (``text`` from :data:`FIGURES`) for diagnosis ``d``: the
+    simulation figure shows an extended model only where there is a cause."""
+    if name == "simulation" and d.cause in ("none", "unexplained"):
+        return (
+            "Measured output and the nominal model's simulation (no extended model: the cause "
+            f"is {d.cause})"
+        )
+    return text
+
+
 #: The formats every figure is written in (PNG for the pages, PDF for print).
 FORMATS: tuple[str, ...] = ("png", "pdf")
 
@@ -337,12 +348,12 @@ def render_html(d: Any, figs: dict[str, bytes]) -> str:
             f"<tr class='{cls}'>" + "".join(f"<td>{esc(r[c])}</td>" for c in cols) + "</tr>"
         )
     parts.append("</table><h2>Figures</h2>")
-    for name, caption in FIGURES:
+    for name, text in FIGURES:
         if name in figs:
             b64 = base64.b64encode(figs[name]).decode("ascii")
             parts.append(
                 f"<figure><img alt='{esc(name)}' src='data:image/png;base64,{b64}'>"
-                f"<figcaption>{esc(caption)}</figcaption></figure>"
+                f"<figcaption>{esc(caption(d, name, text))}</figcaption></figure>"
             )
     parts.append("</body></html>")
     return "\n".join(parts)
@@ -368,9 +379,10 @@ def render_markdown(d: Any, fig_files: dict[str, str]) -> str:
         for r in rows:
             lines.append("| " + " | ".join(_md(r[c]) for c in cols) + " |")
     lines += ["", "## Figures", ""]
-    for name, caption in FIGURES:
+    for name, text in FIGURES:
         if name in fig_files:
-            lines += [f"![{caption}]({fig_files[name]})", "", f"*{caption}*", ""]
+            cap = caption(d, name, text)
+            lines += [f"![{cap}]({fig_files[name]})", "", f"*{cap}*", ""]
     return "\n".join(lines)
 
 
