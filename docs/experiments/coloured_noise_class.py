@@ -9,7 +9,7 @@ poles the blind model and the class comparison's structure take on the records a
 
     python docs/experiments/coloured_noise_class.py [--jobs 2]
 
-Takes about 6 minutes on two cores.
+Takes about 12 minutes on two cores (13-14 CPU minutes).
 """
 
 from __future__ import annotations
