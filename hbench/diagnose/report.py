@@ -29,10 +29,16 @@ FIGURES: tuple[tuple[str, str], ...] = (
 )
 
 
+def has_extension(d: Any) -> bool:
+    """Whether diagnosis ``d`` has an extended model to show (a cause, not ``none`` or
+    ``unexplained``): the simulation figure draws it and its caption names it."""
+    return d.cause not in ("none", "unexplained")
+
+
 def caption(d: Any, name: str, text: str) -> str:
     """The caption of figure ``name`` (``text`` from :data:`FIGURES`) for diagnosis ``d``: the
-    simulation figure shows an extended model only where there is a cause."""
-    if name == "simulation" and d.cause in ("none", "unexplained"):
+    simulation figure shows an extended model only where there is one (:func:`has_extension`)."""
+    if name == "simulation" and not has_extension(d):
         return (
             "Measured output and the nominal model's simulation (no extended model: the cause "
             f"is {d.cause})"
@@ -93,7 +99,7 @@ def render_figures(d: Any) -> dict[str, dict[str, bytes]]:
         lw=0.9,
         label=f"nominal ({nom.model.cls}), validation fit {sim_fit(d, 'nominal'):.1f} %",
     )
-    if d.cause not in ("none", "unexplained"):
+    if has_extension(d):
         ax.plot(
             t,
             d.extended.simulate(ctx.x),
