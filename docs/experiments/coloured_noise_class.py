@@ -55,22 +55,24 @@ VARIANTS: dict[str, tuple[str, str]] = {
 
 
 def record(case: bc.BenchCase, d1: float | None = None, outside: bool = False) -> Record:
-    """The record of ``case`` (as :func:`hbench.diagnose.benchmark_cases.simulate_bench_case`
-    draws it), with the coloured noise's pole set to ``d1`` or the noise added after the loop
-    (the controller does not see it)."""
-    if case.effect != "colored-noise" or (d1 is None and not outside):
+    """The record of ``case``, with the coloured noise's pole set to ``d1`` (the benchmark's
+    own simulation with that pole: the same noise stream) or the noise added after the loop
+    (the controller does not see it; the noise drawn as
+    :func:`hbench.diagnose.benchmark_cases.simulate_bench_case` draws it)."""
+    if d1 is not None:
+        case = replace(case, effect_params={**case.effect_params, "d1": d1})
+    if case.effect != "colored-noise" or not outside:
         return bc.simulate_bench_case(case)
     rng = np.random.default_rng(np.random.SeedSequence([20261128, case.seed]))
     ep = case.effect_params
-    pole = ep["d1"] if d1 is None else d1
     sc = bc._scenario(case, bc.case_plant(case), bc._nl_spec(case))
     c, d = bc._noise_filter(bc.nominal_plant(case), sc.discrete_plant)
-    col = signal.lfilter((1.0, ep["c1"]), (1.0, -pole), rng.standard_normal(case.K * case.p))
+    col = signal.lfilter((1.0, ep["c1"]), (1.0, -ep["d1"]), rng.standard_normal(case.K * case.p))
     add = col * (ep["s"] / ep["snr"]) / max(float(np.std(col)), 1e-300)
-    sc.noise = gen.InjectedNoise(case.noise_sigma, c, d, None if outside else add)
+    sc.noise = gen.InjectedNoise(case.noise_sigma, c, d, None)
     sc.sigma2 = 1.0
     rec = gen.simulate_effect(sc, "none", ep, case.K, rng)
-    return replace(rec, y=rec.y + add[None, :]) if outside else rec
+    return replace(rec, y=rec.y + add[None, :])
 
 
 def chosen_class(variant: str, seed: int, cls: str) -> tuple[str, int, int]:
