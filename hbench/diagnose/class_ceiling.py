@@ -91,10 +91,7 @@ def known_dynamics_classes(
             2 + core.N_SHAPE[cls],
             info=classes.shape_info(cls, theta, x),
         )
-    base = out["linear"].bic
-    for f in out.values():
-        f.score = float((base - f.bic) / 2)
-    return out
+    return classes.score_against_linear(out)
 
 
 def size_of(case: bc.BenchCase, x: np.ndarray) -> float:

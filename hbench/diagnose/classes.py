@@ -65,6 +65,15 @@ class ClassFit:
         return float(self.n * np.log(max(self.rss, 1e-300) / self.n) + self.k * np.log(self.n))
 
 
+def score_against_linear(fits: dict[str, ClassFit]) -> dict[str, ClassFit]:
+    """Set every fit's ``score`` to ``(BIC_linear - BIC) / 2`` (``fits`` holds ``linear``);
+    returns ``fits``."""
+    base = fits["linear"].bic
+    for f in fits.values():
+        f.score = float((base - f.bic) / 2)
+    return fits
+
+
 # --------------------------------------------------------------------------- candidate grids
 
 

@@ -7,9 +7,13 @@ fit part (default ``wang-lsm``, orders ``na <= 2`` (:data:`NA_NOMINAL`), the del
 dynamics (:func:`equation_error_classes`: the likelihood of the nominal noise model, in a
 structure richer than the blind model's so that an effect's misfit is not taken for a valve),
 and the class is chosen by BIC with the rules of :func:`choose_graph` (:func:`blind_model`).
-The simulated output is ``y_hat = k G(q) f(x) + m`` with ``k, m`` and the start-up transient by
-least squares on the fit part. The noise model is the paper's: equation error ``e / A(q)``, so
-the model's innovations are ``A(q) (y - y_hat)``.
+The chosen class's parameters are then fitted by equation error in the blind model's own
+structure, started at their prediction-error estimate with a noise model of its own
+(:data:`THETA_START`: :mod:`hbench.diagnose.box_jenkins`, consistent under output noise of other
+dynamics, where the graph's and equation error's estimates are biased). The simulated output
+is ``y_hat = k G(q) f(x) + m`` with ``k, m`` and the start-up transient by least squares on
+the fit part. The noise model is the paper's: equation error ``e / A(q)``, so the model's
+innovations are ``A(q) (y - y_hat)``.
 
 ``p = 1`` (a plant log: no fast sampling, so no blind route): an output-error model from ``x`` to
 ``y`` with orders ``na = nb`` in 1..3 and delay 0..8 by BIC on the fit part; every class fitted
@@ -37,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from hbench.diagnose import classes, core
+from hbench.diagnose import box_jenkins, classes, core
 from hbench.errors import InputError, MethodError, describe
 from hbench.ident.identifiers import Estimate, IdentifyOptions, identify, run_status
 from hbench.sim.records import Record
@@ -68,6 +72,19 @@ MIN_JUMP_SHARE = 0.1
 #: p >= 2: the class fits through the dynamics are refitted on data prewhitened by an AR
 #: model of the best fit's equation error (:func:`equation_error_classes`).
 PREWHITEN = True
+#: p >= 2: the criterion the classes are compared by: ``"equation-error"``
+#: (:func:`equation_error_classes`) or ``"box-jenkins"``
+#: (:func:`hbench.diagnose.box_jenkins.compare_classes`: an output-error plant and an AR noise
+#: model of its own; fewer classes right on the calibration grids:
+#: ``docs/experiments/box-jenkins-classes.md``).
+CLASS_CRITERION = "equation-error"
+#: ... the first fast samples the Box-Jenkins criterion leaves out (the simulation's start-up).
+BJ_BURN = 100
+#: p >= 2: where the chosen class's parameters are started when fitted in the nominal's
+#: structure (:func:`model_structure_fit`): ``"graph"`` (the (x, U) graph's fit) or
+#: ``"box-jenkins"`` (the class fitted by :func:`hbench.diagnose.box_jenkins.compare_classes`;
+#: chosen on the calibration grids: ``docs/experiments/box-jenkins-classes.md``).
+THETA_START = "box-jenkins"
 #: p = 1: a class beats linear when its simulation fit improves by at least this (points of %).
 #: Tuned on the development loops of ``../shared/data/stictiongpt``: there the memory classes
 #: gained at most 1.6 points on records without stiction.
@@ -457,10 +474,20 @@ def equation_error_classes(
                 "outliers_dropped": 0 if kept is None else int(idx.size - kept.size),
             },
         )
-    base = out["linear"].bic
-    for f in out.values():
-        f.score = float((base - f.bic) / 2)
-    return out
+    return classes.score_against_linear(out)
+
+
+def box_jenkins_classes(
+    model: core.Model, ctx: Context, which: tuple[str, ...]
+) -> dict[str, classes.ClassFit]:
+    """The classes ``which`` fitted by :func:`hbench.diagnose.box_jenkins.compare_classes` on the
+    fit part from :data:`BJ_BURN`, with ``model``'s delay and ``nb`` (at least 2)."""
+    xs = shifted(ctx.x, model.shift)
+    rows = ctx.fit_idx[ctx.fit_idx >= BJ_BURN]
+    nb = max(model.lin.nb, 2)
+    return box_jenkins.compare_classes(
+        xs, ctx.y, ctx.p, rows, nb, model.lin.delay, which, x_scale=xs[: ctx.k_fit]
+    )
 
 
 def model_structure_fit(
@@ -516,9 +543,20 @@ def blind_model(
     if candidates is not None:
         top = max((c for c in graph if c != "linear"), key=lambda c: graph[c].score)
         which = tuple(dict.fromkeys(("linear", *candidates, top)))
-    fits = equation_error_classes(model, ctx, graph, which=which)
+    if CLASS_CRITERION == "box-jenkins":
+        fits = box_jenkins_classes(model, ctx, which)
+        starts = {**graph, **{c: f for c, f in fits.items() if f.theta}}
+    else:
+        fits = equation_error_classes(model, ctx, graph, which=which)
+        starts = graph
     chosen = choose_graph(fits, MIN_STRENGTH_EQ)
-    theta, th = model_structure_fit(chosen, model, ctx, graph, nested="backlash" in fits)
+    if CLASS_CRITERION != "box-jenkins" and THETA_START == "box-jenkins" and chosen != "linear":
+        # stiction with the backlash it nests (the nested start of ``model_structure_fit``)
+        bj = box_jenkins_classes(
+            model, ctx, ("backlash", chosen) if chosen == "stiction" else (chosen,)
+        )
+        starts = {**graph, **{c: f for c, f in bj.items() if f.theta}}
+    theta, th = model_structure_fit(chosen, model, ctx, starts, nested="backlash" in fits)
     na, nb = model.lin.na, max(model.lin.nb, 2)
     lin = core.Linear(
         a=core.stabilise(np.concatenate([[1.0], th[:na]])),
