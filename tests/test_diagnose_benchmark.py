@@ -78,15 +78,16 @@ def _target(rows: list[dict[str, Any]], which: str) -> float:
     return _rate([r for r in rows if keep is None or keep(r)], ok)
 
 
-#: (group, target) pairs not met on the held-out seeds: strict xfails, with the measured rate.
+#: (group, target) pairs not met on the held-out seeds: strict xfails. The measured rates are
+#: printed by the ``held_out_rows`` fixture and stated in the README, not repeated here.
 NOT_MET = {
-    ("paper", "class"): "valve class right on 78/105 paper-loop records",
-    ("paper", "cause"): "cause right on 74/105 paper-loop records",
-    ("paper", "gain"): "positive gain on 68/90 paper-loop records with an effect",
-    ("others", "class"): "valve class right on 79/105 records of the other plants",
-    ("others", "cause"): "cause right on 69/105 records of the other plants",
-    ("others", "gain"): "positive gain on 70/90 records of the other plants with an effect",
-    ("others", "none-kept"): "cause none on 11/15 records of the other plants without an effect",
+    ("paper", "class"): "valve class right on paper-loop records",
+    ("paper", "cause"): "cause right on paper-loop records",
+    ("paper", "gain"): "positive gain on paper-loop records with an effect",
+    ("others", "class"): "valve class right on records of the other plants",
+    ("others", "cause"): "cause right on records of the other plants",
+    ("others", "gain"): "positive gain on records of the other plants with an effect",
+    ("others", "none-kept"): "cause none on records of the other plants without an effect",
 }
 
 

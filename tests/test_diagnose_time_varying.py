@@ -1,5 +1,6 @@
 """The time-varying extension's segment: the detector's break when it fired, else the latest
-window of the fit part (``hbench.diagnose.effects.TimeVarying.segment_start``).
+window of the fit part (``hbench.diagnose.effects.TimeVarying.segment_start``), and the valve
+class compared on that segment alone.
 
 The behavioural test uses seed 5001 of the benchmark loops (outside the calibration seeds
 10000-19999 and the held-out seeds 20000-29999): the paper loop, a linear valve, the plant's gain
@@ -15,7 +16,9 @@ import numpy as np
 import pytest
 
 from hbench.diagnose import benchmark_cases as bc
+from hbench.diagnose import core
 from hbench.diagnose import effects as ef
+from hbench.diagnose import nominal as nm
 from hbench.diagnose.validate import MIN_GAIN_UNDETECTED, criteria_fits, diagnose
 
 
@@ -70,3 +73,36 @@ def test_the_latest_window_gains_where_the_quiet_detectors_segment_does_not(chan
     assert gain_latest >= MIN_GAIN_UNDETECTED > gain_break
     assert d.cause == "time-varying"
     assert d.extensions["time-varying"].model.info["segment_start"] > det.info["at"]
+
+
+def test_fit_segment_is_the_fit_parts_tail_all_of_it_fit(changed_record):
+    _, d = changed_record
+    ctx = d.ctx
+    k0 = ctx.k_fit // 3
+    seg = ctx.fit_segment(k0)
+    assert seg.p == ctx.p and seg.h == ctx.h
+    assert seg.k_fit == seg.K == ctx.k_fit - k0 and seg.val_idx.size == 0
+    np.testing.assert_array_equal(seg.x, ctx.x[k0 : ctx.k_fit])
+    np.testing.assert_array_equal(seg.y, ctx.y[k0 * ctx.p : ctx.n_fit])
+    np.testing.assert_array_equal(seg.record.x[0], seg.x)
+
+
+def test_the_segments_class_is_compared_through_the_dynamics():
+    """Calibration record 11103 (NMP plant, p = 3, a stiction valve, the plant's gain changed
+    at 30-42 % of the record): the nominal, fitted over both regimes, takes the valve for a
+    backlash; every class compared by equation error on the segment after the change gives
+    the stiction back, with all five classes scored."""
+    case = next(
+        c for c in bc.bench_grid(11000, 1, ("first-order", "third-order", "nmp")) if c.seed == 11103
+    )
+    assert (case.effect, case.cls) == ("time-varying", "stiction")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ctx = nm.make_context(bc.simulate_bench_case(case))
+        nom = nm.fit_nominal(ctx)
+        tv = ef.TimeVarying()
+        m = tv.extend(ctx, nom, tv.detect(ctx, nom))
+    assert nom.chosen == "backlash"
+    assert m.cls == "stiction"
+    assert set(m.info["class_fits"]) == set(core.CLASSES)
+    assert m.info["class_fits"]["linear"].score == 0.0

@@ -683,14 +683,19 @@ class Outliers(Effect):
     neighbours do (one-sample spikes; :func:`hbench.diagnose.stats.isolated_spikes`); p-value:
     that many or more beyond 6 sigmas among Gaussian samples. Extension: robust re-fitting:
     the spikes of the measured ``y`` in the fit part are replaced by the mean of their
-    neighbours and the nominal model is fitted again (blind route and all), with Huber weights
-    in the final least squares.
+    neighbours and the nominal model is fitted again (blind route, every valve class compared:
+    :attr:`CLASSES`), with Huber weights in the final least squares.
     """
 
     name = "outliers"
     summary = "heavy-tailed residuals (spikes); extension: robust re-weighting"
     threshold = 0.3
     K_SIGMA = 6.0
+    #: The classes the nominal fitted again on the cleaned record compares: ``all``, as the
+    #: nominal does (spikes mislead the nominal's class as they mislead its dynamics), or
+    #: ``nominal`` (the nominal's class, ``linear`` and the cleaned graph's best, as the other
+    #: extensions that run the nominal route again; ``docs/experiments/extension-classes.md``).
+    CLASSES = "all"
 
     def detect(self, ctx: nm.Context, nom: nm.Nominal) -> Detection:
         e = _fit(ctx, nom, nom.resid)
@@ -719,7 +724,10 @@ class Outliers(Effect):
                 break
             i = np.flatnonzero(mask)
             y[i] = 0.5 * (y[i - 1] + y[i + 1])
-        m = nm.fit_nominal(replace(ctx, y=y), **_nominal_kw(ctx, nom)).model
+        kw = _nominal_kw(ctx, nom)
+        if self.CLASSES == "all":
+            kw["candidates"] = None
+        m = nm.fit_nominal(replace(ctx, y=y), **kw).model
         r = (y - m.simulate(ctx.x))[ctx.fit_idx]
         s = stats.robust_sigma(r)
         w = np.ones(ctx.N)
@@ -765,7 +773,10 @@ class TimeVarying(Effect):
     Extension: the model of the regime after the change, fitted on the fit part from
     :meth:`segment_start` on (the detector's break when it fired, else the fit part's last
     :data:`LATEST` share): the nominal family re-fitted there, or the blind route run again on
-    that segment, whichever simulates the segment better.
+    that segment, whichever simulates the segment better. The blind route's valve class is
+    chosen on the segment alone, every class compared through the dynamics as the nominal's is
+    (:attr:`SEGMENT_CLASS`): a fit over both regimes lends the valve what the plant's change
+    did (``docs/experiments/extension-classes.md``).
     """
 
     name = "time-varying"
@@ -777,6 +788,11 @@ class TimeVarying(Effect):
     #: Share of the fit part, at its end, that the extension models when the detector is
     #: quiet (:meth:`segment_start`).
     LATEST = 0.3
+    #: How the blind candidate on the segment after the change chooses its valve class:
+    #: ``equation-error`` (every class compared through the dynamics on the segment, as the
+    #: nominal's: :func:`hbench.diagnose.nominal.blind_model`) or ``graph`` (the segment's
+    #: blind (x, U) graph alone).
+    SEGMENT_CLASS = "equation-error"
 
     def detect(self, ctx: nm.Context, nom: nm.Nominal) -> Detection:
         m = nom.model
@@ -880,19 +896,28 @@ class TimeVarying(Effect):
                     record=ctx.part(k0, ctx.k_fit),
                     delay_multiple=kw["delay_multiple"],
                 )
-                U = np.full(ctx.K, np.nan)
-                U[k0 : k0 + est.U.shape[1]] = est.U[0]
-                fits = classes.fit_graph(ctx.x[k0 : ctx.k_fit], U[k0 : ctx.k_fit])
-                chosen = nm.choose_graph(fits)
-                lin = nm.linear_from_estimate(est, ctx.p, kw["delay_multiple"])
-                m = core.Model(
-                    cls=chosen,
-                    theta=fits[chosen].theta,
-                    lin=lin,
-                    p=ctx.p,
-                    label="time-varying",
-                    info={**nom.model.info, "class_fits": fits},
-                )
+                if self.SEGMENT_CLASS == "equation-error":
+                    seg = nm.blind_model(
+                        ctx.fit_segment(k0),
+                        est,
+                        delay_multiple=kw["delay_multiple"],
+                        label="time-varying",
+                    )[0]
+                    m = seg.with_(info={**nom.model.info, "class_fits": seg.info["class_fits"]})
+                else:
+                    U = np.full(ctx.K, np.nan)
+                    U[k0 : k0 + est.U.shape[1]] = est.U[0]
+                    fits = classes.fit_graph(ctx.x[k0 : ctx.k_fit], U[k0 : ctx.k_fit])
+                    chosen = nm.choose_graph(fits)
+                    lin = nm.linear_from_estimate(est, ctx.p, kw["delay_multiple"])
+                    m = core.Model(
+                        cls=chosen,
+                        theta=fits[chosen].theta,
+                        lin=lin,
+                        p=ctx.p,
+                        label="time-varying",
+                        info={**nom.model.info, "class_fits": fits},
+                    )
                 cands.append(nm.arx_refine(m, ctx, idx))
             except Exception:
                 pass

@@ -144,6 +144,20 @@ class Context:
     def all_idx(self) -> np.ndarray:
         return np.arange(self.N)
 
+    def fit_segment(self, k0: int) -> Context:
+        """The fit part's slow samples ``k0 .. k_fit - 1`` as a context of its own, all of it
+        fit (no validation part): a class compared on one regime of a record."""
+        return Context(
+            self.part(k0, self.k_fit),
+            self.x[k0 : self.k_fit],
+            self.y[k0 * self.p : self.n_fit],
+            None if self.r is None else self.r[k0 : self.k_fit],
+            self.p,
+            self.h,
+            self.k_fit - k0,
+            self.options,
+        )
+
     def part(self, k0: int, k1: int) -> Record:
         """The sub-record of slow samples ``k0 .. k1 - 1``."""
         p = self.p
