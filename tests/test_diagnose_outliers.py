@@ -2,12 +2,14 @@
 valve class compared (``hbench.diagnose.effects.Outliers``).
 
 The record is calibration seed 11053 of the benchmark loops (the third-order plant, p = 3, a
-dead-zone valve, spikes on 0.5-1.5 % of the fast samples; calibration seeds 10000-19999).
+dead-zone valve, spikes on 0.68 % of the fast samples; calibration seeds 10000-19999).
 """
 
 from __future__ import annotations
 
 import warnings
+
+import pytest
 
 from hbench.diagnose import benchmark_cases as bc
 from hbench.diagnose import core
@@ -15,9 +17,8 @@ from hbench.diagnose import effects as ef
 from hbench.diagnose import nominal as nm
 
 
-def test_the_cleaned_record_gives_the_class_the_spikes_hid():
-    """The nominal, fitted through the spikes, takes the dead zone for a linear valve; fitted
-    again on the cleaned record with every class compared, it finds the dead zone."""
+@pytest.fixture(scope="module")
+def spiky():
     case = next(
         c for c in bc.bench_grid(11000, 1, ("first-order", "third-order", "nmp")) if c.seed == 11053
     )
@@ -26,10 +27,28 @@ def test_the_cleaned_record_gives_the_class_the_spikes_hid():
         warnings.simplefilter("ignore")
         ctx = nm.make_context(bc.simulate_bench_case(case))
         nom = nm.fit_nominal(ctx)
-        ol = ef.Outliers()
-        det = ol.detect(ctx, nom)
-        m = ol.extend(ctx, nom, det)
+        det = ef.Outliers().detect(ctx, nom)
+    return ctx, nom, det
+
+
+def test_the_cleaned_record_gives_the_class_the_spikes_hid(spiky):
+    """The nominal, fitted through the spikes, takes the dead zone for a linear valve; fitted
+    again on the cleaned record with every class compared, it finds the dead zone."""
+    ctx, nom, det = spiky
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        m = ef.Outliers().extend(ctx, nom, det)
     assert nom.chosen == "linear"
     assert det.fired and m.info["cleaned"] > 0
     assert m.cls == "deadband"
+    assert m.info["refit"] == "equation-error"
     assert set(m.info["class_fits"]) == set(core.CLASSES)
+    assert all("eq" in f.info for f in m.info["class_fits"].values())
+
+
+def test_an_unknown_refit_class_set_is_an_error(spiky):
+    ctx, nom, det = spiky
+    ol = ef.Outliers()
+    ol.REFIT_CLASSES = "every"
+    with pytest.raises(ValueError, match="REFIT_CLASSES"):
+        ol.extend(ctx, nom, det)

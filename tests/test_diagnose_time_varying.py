@@ -85,13 +85,25 @@ def test_fit_segment_is_the_fit_parts_tail_all_of_it_fit(changed_record):
     np.testing.assert_array_equal(seg.x, ctx.x[k0 : ctx.k_fit])
     np.testing.assert_array_equal(seg.y, ctx.y[k0 * ctx.p : ctx.n_fit])
     np.testing.assert_array_equal(seg.record.x[0], seg.x)
+    for bad in (-1, ctx.k_fit):
+        with pytest.raises(ValueError, match="fit part"):
+            ctx.fit_segment(bad)
+
+
+def test_an_unknown_segment_class_route_is_an_error(changed_record):
+    _, d = changed_record
+    tv = ef.TimeVarying()
+    tv.SEGMENT_CLASS = "graphs"
+    det = next(x for x in d.detections if x.name == "time-varying")
+    with pytest.raises(ValueError, match="SEGMENT_CLASS"):
+        tv.extend(d.ctx, d.nominal, det)
 
 
 def test_the_segments_class_is_compared_through_the_dynamics():
-    """Calibration record 11103 (NMP plant, p = 3, a stiction valve, the plant's gain changed
-    at 30-42 % of the record): the nominal, fitted over both regimes, takes the valve for a
-    backlash; every class compared by equation error on the segment after the change gives
-    the stiction back, with all five classes scored."""
+    """Calibration record 11103 (NMP plant, p = 3, a stiction valve, the plant's gain times
+    2.06 from 40 % of the record on): the nominal, fitted over both regimes, takes the valve
+    for a backlash; every class compared by equation error on the segment after the change
+    gives the stiction back, with all five classes scored through the dynamics."""
     case = next(
         c for c in bc.bench_grid(11000, 1, ("first-order", "third-order", "nmp")) if c.seed == 11103
     )
@@ -104,5 +116,7 @@ def test_the_segments_class_is_compared_through_the_dynamics():
         m = tv.extend(ctx, nom, tv.detect(ctx, nom))
     assert nom.chosen == "backlash"
     assert m.cls == "stiction"
+    assert m.info["refit"] == "equation-error"
     assert set(m.info["class_fits"]) == set(core.CLASSES)
+    assert all("eq" in f.info for f in m.info["class_fits"].values())
     assert m.info["class_fits"]["linear"].score == 0.0

@@ -39,7 +39,7 @@ import numpy as np
 
 from hbench.diagnose import classes, core, null, stats
 from hbench.diagnose import nominal as nm
-from hbench.errors import InputError, MethodError
+from hbench.errors import InputError, MethodError, describe
 
 __all__ = ["BUILTIN", "Detection", "Effect"]
 
@@ -684,7 +684,8 @@ class Outliers(Effect):
     that many or more beyond 6 sigmas among Gaussian samples. Extension: robust re-fitting:
     the spikes of the measured ``y`` in the fit part are replaced by the mean of their
     neighbours and the nominal model is fitted again (blind route, every valve class compared:
-    :attr:`CLASSES`), with Huber weights in the final least squares.
+    :attr:`REFIT_CLASSES`), with Huber weights in the final least squares. Raises
+    ``ValueError`` for an unknown :attr:`REFIT_CLASSES`.
     """
 
     name = "outliers"
@@ -692,10 +693,12 @@ class Outliers(Effect):
     threshold = 0.3
     K_SIGMA = 6.0
     #: The classes the nominal fitted again on the cleaned record compares: ``all``, as the
-    #: nominal does (spikes mislead the nominal's class as they mislead its dynamics), or
+    #: nominal does (spikes mislead the nominal's class as they mislead its dynamics);
     #: ``nominal`` (the nominal's class, ``linear`` and the cleaned graph's best, as the other
-    #: extensions that run the nominal route again; ``docs/experiments/extension-classes.md``).
-    CLASSES = "all"
+    #: extensions that run the nominal route again); or ``both`` (one fit of each, the one
+    #: that simulates the cleaned fit part better kept). Measured in
+    #: ``docs/experiments/extension-classes.md``.
+    REFIT_CLASSES = "all"
 
     def detect(self, ctx: nm.Context, nom: nm.Nominal) -> Detection:
         e = _fit(ctx, nom, nom.resid)
@@ -724,10 +727,17 @@ class Outliers(Effect):
                 break
             i = np.flatnonzero(mask)
             y[i] = 0.5 * (y[i - 1] + y[i + 1])
+        which = self.REFIT_CLASSES
+        if which not in ("all", "nominal", "both"):
+            raise ValueError(f"REFIT_CLASSES must be 'all', 'nominal' or 'both', got {which!r}")
         kw = _nominal_kw(ctx, nom)
-        if self.CLASSES == "all":
-            kw["candidates"] = None
-        m = nm.fit_nominal(replace(ctx, y=y), **kw).model
+        cleaned = replace(ctx, y=y)
+        fits = []  # for p = 1 the candidates change nothing: one fit
+        if which == "nominal" or (which == "both" and ctx.p >= 2):
+            fits.append(nm.fit_nominal(cleaned, **kw).model)
+        if which in ("all", "both"):
+            fits.append(nm.fit_nominal(cleaned, **{**kw, "candidates": None}).model)
+        m = min(fits, key=lambda c: float(np.sum((y - c.simulate(ctx.x))[ctx.fit_idx] ** 2)))
         r = (y - m.simulate(ctx.x))[ctx.fit_idx]
         s = stats.robust_sigma(r)
         w = np.ones(ctx.N)
@@ -885,42 +895,17 @@ class TimeVarying(Effect):
     def extend(self, ctx: nm.Context, nom: nm.Nominal, det: Detection) -> core.Model:
         b = self.segment_start(ctx, det)
         idx = ctx.fit_idx[b:]
+        if self.SEGMENT_CLASS not in ("equation-error", "graph"):
+            raise ValueError(
+                f"SEGMENT_CLASS must be 'equation-error' or 'graph', got {self.SEGMENT_CLASS!r}"
+            )
         cands = [nm.nominal_family_fit(nom.model, ctx, idx)]
         k0 = -(-b // ctx.p)
         if ctx.p >= 2 and nom.estimate is not None and ctx.k_fit - k0 >= nm.MIN_FIT:
-            try:  # the blind route again on the segment after the change
-                kw = _nominal_kw(ctx, nom)
-                est = nm.identify_blind(
-                    ctx,
-                    kw["method"],
-                    record=ctx.part(k0, ctx.k_fit),
-                    delay_multiple=kw["delay_multiple"],
-                )
-                if self.SEGMENT_CLASS == "equation-error":
-                    seg = nm.blind_model(
-                        ctx.fit_segment(k0),
-                        est,
-                        delay_multiple=kw["delay_multiple"],
-                        label="time-varying",
-                    )[0]
-                    m = seg.with_(info={**nom.model.info, "class_fits": seg.info["class_fits"]})
-                else:
-                    U = np.full(ctx.K, np.nan)
-                    U[k0 : k0 + est.U.shape[1]] = est.U[0]
-                    fits = classes.fit_graph(ctx.x[k0 : ctx.k_fit], U[k0 : ctx.k_fit])
-                    chosen = nm.choose_graph(fits)
-                    lin = nm.linear_from_estimate(est, ctx.p, kw["delay_multiple"])
-                    m = core.Model(
-                        cls=chosen,
-                        theta=fits[chosen].theta,
-                        lin=lin,
-                        p=ctx.p,
-                        label="time-varying",
-                        info={**nom.model.info, "class_fits": fits},
-                    )
-                cands.append(nm.arx_refine(m, ctx, idx))
-            except Exception:
-                pass
+            try:
+                cands.append(nm.arx_refine(self.segment_blind(ctx, nom, k0), ctx, idx))
+            except (InputError, MethodError, np.linalg.LinAlgError, ValueError) as exc:
+                cands[0].info["segment_blind"] = f"failed: {describe(exc)}"
         m = (
             cands[0]
             if len(cands) == 1
@@ -928,6 +913,16 @@ class TimeVarying(Effect):
         )
         m.info["segment_start"] = b
         return m
+
+    def segment_blind(self, ctx: nm.Context, nom: nm.Nominal, k0: int) -> core.Model:
+        """The blind route run again on the fit part's slow samples ``k0`` on (the nominal's
+        method and delay multiple), its valve class chosen as :attr:`SEGMENT_CLASS` says.
+        The model's output scale and offset belong to the segment; the caller refits them."""
+        kw = _nominal_kw(ctx, nom)
+        seg = ctx.fit_segment(k0)
+        est = nm.identify_blind(seg, kw["method"], delay_multiple=kw["delay_multiple"])
+        route = nm.blind_model if self.SEGMENT_CLASS == "equation-error" else nm.model_from_blind
+        return route(seg, est, delay_multiple=kw["delay_multiple"], label="time-varying")[0]
 
 
 # --------------------------------------------------------------------------- order

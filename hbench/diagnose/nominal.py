@@ -145,17 +145,20 @@ class Context:
         return np.arange(self.N)
 
     def fit_segment(self, k0: int) -> Context:
-        """The fit part's slow samples ``k0 .. k_fit - 1`` as a context of its own, all of it
-        fit (no validation part): a class compared on one regime of a record."""
+        """The fit part's slow samples ``k0 .. k_fit - 1`` as a context of its own whose fit
+        part is all of it (it has no validation part): a class compared on one regime of a
+        record. Raises ``ValueError`` unless ``0 <= k0 < k_fit``."""
+        if not 0 <= k0 < self.k_fit:
+            raise ValueError(f"the segment must start in the fit part [0, {self.k_fit}), got {k0}")
         return Context(
-            self.part(k0, self.k_fit),
-            self.x[k0 : self.k_fit],
-            self.y[k0 * self.p : self.n_fit],
-            None if self.r is None else self.r[k0 : self.k_fit],
-            self.p,
-            self.h,
-            self.k_fit - k0,
-            self.options,
+            record=self.part(k0, self.k_fit),
+            x=self.x[k0 : self.k_fit],
+            y=self.y[k0 * self.p : self.n_fit],
+            r=None if self.r is None else self.r[k0 : self.k_fit],
+            p=self.p,
+            h=self.h,
+            k_fit=self.k_fit - k0,
+            options=self.options,
         )
 
     def part(self, k0: int, k1: int) -> Record:
