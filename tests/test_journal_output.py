@@ -15,8 +15,8 @@ import pytest
 
 from hbench.bench.runner import methods_from_names, run_cell
 from hbench.errors import InputError
+from hbench.report import aggregate, elements, figures, inputs
 from hbench.report import build as report
-from hbench.report import elements, figures
 from hbench.report.style import COLUMN_WIDTH, PAGE_WIDTH, STYLE_FILE, method_style
 from hbench.sim import scenarios
 
@@ -78,8 +78,8 @@ def test_method_styles_are_fixed_by_name() -> None:
 def test_every_figure_draws_a_method_in_its_colour_and_marker(run_dir) -> None:
     from matplotlib.colors import to_hex
 
-    rows, _ = report.load_rows(run_dir)
-    stats = report.cell_stats(rows)
+    rows, _ = inputs.load_rows(run_dir)
+    stats = aggregate.cell_stats(rows)
     stats["fitness"]["fitness_ci"] = 1.0
     blind = [m for m in METHODS if m != "oracle"]  # oracles have no bias to draw
     drawn = [
@@ -102,8 +102,8 @@ def test_figures_are_journal_sized_and_leave_rcparams_alone(run_dir) -> None:
     import matplotlib
 
     before = dict(matplotlib.rcParams)
-    rows, _ = report.load_rows(run_dir)
-    stats = report.cell_stats(rows)
+    rows, _ = inputs.load_rows(run_dir)
+    stats = aggregate.cell_stats(rows)
     fig = figures.time_per_method(stats["timing"], str)
     wide = figures.bias_std_vs_snr(stats["bias"], str)
     try:
@@ -123,8 +123,8 @@ def test_no_text_is_cut_at_the_figure_edge(run_dir) -> None:
     PNG and PDF show the whole figure)."""
     from matplotlib.text import Text
 
-    rows, _ = report.load_rows(run_dir)
-    stats = report.cell_stats(rows)
+    rows, _ = inputs.load_rows(run_dir)
+    stats = aggregate.cell_stats(rows)
     stats["fitness"]["fitness_ci"] = 1.0
     label = report.method_label  # the long labels: "... (reconstruction)", "... (oracle bound)"
     drawn = [
@@ -252,8 +252,8 @@ def test_fitness_figure_has_paper_markers_where_published(run_dir) -> None:
     """The paper's fitness (where one is published) is a hollow marker in the method's colour."""
     from matplotlib.colors import to_hex
 
-    rows, _ = report.load_rows(run_dir)
-    fitness = report.cell_stats(rows)["fitness"]
+    rows, _ = inputs.load_rows(run_dir)
+    fitness = aggregate.cell_stats(rows)["fitness"]
     published = np.where(fitness["method"] == "wang-lsm", 90.0, np.nan)
     fig = figures.fitness_vs_snr(fitness.assign(fitness_ci=1.0, paper=published), str)
     try:
@@ -267,8 +267,8 @@ def test_fitness_figure_has_paper_markers_where_published(run_dir) -> None:
 def test_spread_option_switches_the_error_bars(run_dir, tmp_path, run_cli) -> None:
     """The fitness figure's error bars: the 95 % interval by default, one std with
     ``--spread std``; the caption says which."""
-    rows, _ = report.load_rows(run_dir)
-    fitness = report.cell_stats(rows)["fitness"].assign(fitness_ci=0.123, fitness_std=4.56)
+    rows, _ = inputs.load_rows(run_dir)
+    fitness = aggregate.cell_stats(rows)["fitness"].assign(fitness_ci=0.123, fitness_std=4.56)
 
     def half_widths(spread: str) -> set[float]:
         fig = figures.fitness_vs_snr(fitness, str, spread=spread)
@@ -297,8 +297,8 @@ def test_spread_option_switches_the_error_bars(run_dir, tmp_path, run_cli) -> No
 def test_bias_figure_has_the_papers_bias_hollow(run_dir) -> None:
     from matplotlib.colors import to_hex
 
-    rows, _ = report.load_rows(run_dir)
-    bias = report.cell_stats(rows)["bias"]
+    rows, _ = inputs.load_rows(run_dir)
+    bias = aggregate.cell_stats(rows)["bias"]
     published = np.where((bias["method"] == "wang-iv") & (bias["parameter"] == "a1"), 0.01, np.nan)
     fig = figures.bias_std_vs_snr(bias.assign(paper_bias=published), str)
     try:

@@ -13,6 +13,7 @@ import pytest
 
 from hbench.bench.runner import methods_from_names, run_cell
 from hbench.paper.reproduce import save_examples
+from hbench.report import aggregate, inputs
 from hbench.report import build as report
 from hbench.sim import scenarios
 from hbench.tables import results
@@ -105,7 +106,7 @@ def built(sweep_dir, tmp_path_factory):
 
 def test_rows_found_below_the_root_and_deduplicated(sweep_dir):
     root, _ = sweep_dir
-    rows, files = report.load_rows(root)
+    rows, files = inputs.load_rows(root)
     assert len(files) == 4
     sizes = [len(pd.read_parquet(root / j / "rows.parquet")) for j in ("0", "1", "snr")]
     assert len(rows) == sum(sizes)  # the copied job counted once
@@ -161,7 +162,7 @@ def test_report_tables_provenance_and_labels(built, sweep_dir):
     assert "config.sigma2" in differs and "0.0001" in differs and "0.001" in differs
     fitness = "".join(page.section_text["table-fitness"])
     assert "wang-lsm" in fitness and "backlash" in fitness
-    stats = report.cell_stats(report.load_rows(sweep_dir[0])[0])
+    stats = aggregate.cell_stats(inputs.load_rows(sweep_dir[0])[0])
     assert len(stats["fitness"]) == 3 * len(METHODS)  # two sigma^2 cells and one SNR cell
     ranking = "".join(page.section_text["table-ranking"])
     assert "oracle" not in ranking  # bounds are not ranked
@@ -193,7 +194,7 @@ def test_report_with_examples_draws_xu_graphs_and_never_overwrites(sweep_dir, tm
     assert src["fig-xu"].startswith("data:image/png;base64,")
     assert "no-examples" not in {a.get("id") for _, a, _ in page.tags}
     assert (second.parent / "xu.pdf").read_bytes()[:5] == b"%PDF-"
-    loaded = report.load_examples(run)
+    loaded = inputs.load_examples(run)
     assert len(loaded) == 1
     assert set(loaded[0]["estimates"]) == set(METHODS)
     np.testing.assert_array_equal(loaded[0]["x"], examples[1]["x"])

@@ -14,6 +14,7 @@ import pytest
 
 from hbench.bench.runner import methods_from_names, run_cell
 from hbench.ident.identifiers import Identifier
+from hbench.report import aggregate, inputs
 from hbench.report import build as report
 from hbench.sim import scenarios
 
@@ -155,7 +156,7 @@ def test_report_names_the_failing_method_cell_and_reason(some_fail, tmp_path):
     failures = page.text("table-failures")
     assert "always-fails" in failures and "RuntimeError: " + NASTY in failures
     assert "not identifiable: p = 1" in failures
-    table = report.failure_table(report.load_rows(some_fail)[0])
+    table = aggregate.failure_table(inputs.load_rows(some_fail)[0])
     assert list(zip(table["method"], table["p"], strict=True)) == [
         ("always-fails", 5),
         ("wang-lsm", 1),
@@ -203,7 +204,7 @@ def test_failure_table_counts_and_caps_messages():
     )
     rows.loc[rows["run"] == 6, "status"] = "ok"
     rows.loc[rows["run"] == 5, "status"] = "not-identifiable"
-    table = report.failure_table(rows, messages=3, width=40)
+    table = aggregate.failure_table(rows, messages=3, width=40)
     assert len(table) == 1
     row = table.iloc[0]
     assert (row["runs"], row["ok"], row["failed"], row["not-identifiable"]) == (7, 1, 5, 1)
@@ -213,15 +214,15 @@ def test_failure_table_counts_and_caps_messages():
     assert parts[-1] == "(+2 more distinct messages)"
     assert len(parts) == 4
     # a long message is cut, and says so
-    table = report.failure_table(rows[rows["run"] == 5], width=40)
+    table = aggregate.failure_table(rows[rows["run"] == 5], width=40)
     assert table.iloc[0]["messages"] == "x" * 37 + "... [1 run]"
     # every run ok: an empty table with the same columns
-    empty = report.failure_table(rows[rows["run"] == 6])
+    empty = aggregate.failure_table(rows[rows["run"] == 6])
     assert empty.empty and "messages" in empty.columns
 
 
 def test_cell_stats_without_any_ok_run(none_ok):
-    stats = report.cell_stats(report.load_rows(none_ok)[0])
+    stats = aggregate.cell_stats(inputs.load_rows(none_ok)[0])
     for name in ("fitness", "bias", "timing", "ranking"):
         assert stats[name].empty
         assert "method" in stats[name].columns

@@ -23,6 +23,7 @@ import pytest
 
 from hbench.bench.schema import TIDY_COLUMNS
 from hbench.report import build as report
+from hbench.report import table_files
 from hbench.tables import results
 from tests.helpers import HAS_PDFLATEX, NO_PDFLATEX, compile_tex
 
@@ -249,12 +250,12 @@ def test_to_latex_escapes_caption_headers_and_cells() -> None:
 
 
 def test_report_tables_escaped_once(tmp_path: Path) -> None:
-    """report.write_table leaves the escaping to to_latex: no escape is escaped again."""
+    """table_files.write_table leaves the escaping to to_latex: no escape is escaped again."""
     table = pd.DataFrame({"method": ["a_b"], "messages": ["50% & {x} ^ ~"]})
-    report.write_table(tmp_path, "t", table)
+    table_files.write_table(tmp_path, "t", table)
     tex = (tmp_path / "t.tex").read_text()
     assert r"a\_b & 50\% \& \{x\} \textasciicircum{} \textasciitilde{} \\" in tex
-    report.write_table(tmp_path, "e", table.iloc[:0], empty="none_ok: 100% & ^")
+    table_files.write_table(tmp_path, "e", table.iloc[:0], empty="none_ok: 100% & ^")
     assert r"{none\_ok: 100\% \& \textasciicircum{}} \\" in (tmp_path / "e.tex").read_text()
 
 
@@ -265,7 +266,7 @@ def test_tex_files_compile(tmp_path: Path) -> None:
     report.build_report(tmp_path, tmp_path / "report", rows=rows)
     table = pd.DataFrame({SPECIALS: [SPECIALS, "1.0 ± 0.1 σ²"], "x": [1.0, math.nan]})
     (tmp_path / "specials.tex").write_text(results.to_latex(table, caption=SPECIALS))
-    report.write_table(tmp_path, "empty", table.iloc[:0], note=SPECIALS, empty=SPECIALS)
+    table_files.write_table(tmp_path, "empty", table.iloc[:0], note=SPECIALS, empty=SPECIALS)
     files = sorted(tmp_path.rglob("*.tex"))
     assert len(files) >= 9 and tmp_path / "report" / "summary.tex" in files
     done = compile_tex(tmp_path, files)

@@ -7,40 +7,45 @@ files (written by ``hbench reproduce``; see :func:`hbench.paper.reproduce.save_e
 graphs; ``reproduce.csv`` (and ``investigation.csv``) the comparison with the paper.
 
 Output (default ``RUN_DIR/report/``, or a fresh ``RUN_DIR/report-<time>/`` if that exists): a
-self-contained ``report.html`` (figures embedded as base64 PNG data URIs, no external resources),
-the figures as PNG (200 dpi) and PDF (TrueType fonts), and the tables. The page opens with the
-headline (:func:`write_summary`: ``summary.{csv,md,tex}`` and ``summary_bias.{csv,md,tex}``,
-:mod:`hbench.tables.summary` and :mod:`hbench.tables.headline`): who wins each cell, with what
-confidence. The other tables, as Markdown and LaTeX (booktabs), the method's label in the ``method``
-column: ``fitness``, ``bias`` (the contract's aggregation), ``structure`` (hit rates of na, nb, tau,
-delay), ``ranking`` (mean rank of fitness per cell among the blind methods; oracles are bounds, not
-ranked), ``timing`` (seconds per run), and, when some run is not ``ok``, ``failures``
-(:func:`failure_table`: per method and cell, how many runs failed or were not identifiable, and
-why). On the page every table scrolls in its own box, columns with no value are left out (said under
-the table), the long tables and the provenance are folded (``<details>``), and the provenance is one
-block: what every job shares, and a table of what differs. A table or figure with no data is
-replaced by a one-line note (the Markdown and LaTeX files of an empty table say why it is empty);
-when no run produced an estimate the page says so first. Methods whose class is a reconstruction
+self-contained ``report.html`` (figures embedded as base64 PNG data URIs, no external
+resources), the figures as PNG (200 dpi) and PDF (TrueType fonts), and the tables. The page
+opens with the headline (:func:`write_summary`: ``summary.{csv,md,tex}`` and
+``summary_bias.{csv,md,tex}``, :mod:`hbench.tables.summary` and :mod:`hbench.tables.headline`):
+who wins each cell, with what confidence. The other tables, as Markdown and LaTeX (booktabs),
+the method's label in the ``method`` column: ``fitness``, ``bias`` (the contract's aggregation),
+``structure`` (hit rates of na, nb, tau, delay), ``ranking`` (mean rank of fitness per cell
+among the blind methods; oracles are bounds, not ranked), ``timing`` (seconds per run), and,
+when some run is not ``ok``, ``failures`` (:func:`hbench.report.aggregate.failure_table`: per
+method and cell, how many runs failed or were not identifiable, and why). On the page every
+table scrolls in its own box, columns with no value are left out (said under the table), the
+long tables and the provenance are folded (``<details>``), and the provenance is one block: what
+every job shares, and a table of what differs. A table or figure with no data is replaced by a
+one-line note (the Markdown and LaTeX files of an empty table say why it is empty); when no run
+produced an estimate the page says so first. Methods whose class is a reconstruction
 (``reconstruction = True``) are labelled so wherever they appear. When a method of the
 ``hbench_extensions`` plugin package ran, a section "Beyond the paper" follows the tables
-(:mod:`hbench.report.beyond`; its tables ``beyond_*`` are written beside the others)."""
+(:mod:`hbench.report.beyond`; its tables ``beyond_*`` are written beside the others).
+
+This module assembles the page; what it reads is :mod:`hbench.report.inputs`, the numbers it
+shows :mod:`hbench.report.aggregate`, its table files :mod:`hbench.report.table_files`."""
 
 from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
-from collections import Counter
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from hbench.errors import InputError
+from hbench.report.aggregate import cell_stats, failure_table, run_table, status_counts
 from hbench.report.elements import escape as _esc
 from hbench.report.elements import html_figure, html_table
+from hbench.report.inputs import load_examples, load_provenance, load_rows
 from hbench.report.style import method_info
+from hbench.report.table_files import markdown_cells, write_table
 from hbench.system import atomic
 
 #: Names not in the registry that reports may meet (defined by ``hbench reproduce``).
@@ -53,93 +58,6 @@ FIGURE_IDS = (
     "fig-ranking",
     "fig-beyond-delay",
 )
-
-
-# --------------------------------------------------------------------------- inputs
-
-
-def find_rows(run_dir: Path) -> list[Path]:
-    """``RUN_DIR/rows.parquet`` if present, else every ``**/rows.parquet`` below (sorted)."""
-    root = run_dir / "rows.parquet"
-    if root.is_file():
-        return [root]
-    return sorted(p for p in run_dir.rglob("rows.parquet") if p.is_file())
-
-
-def load_rows(run_dir: Path) -> tuple[Any, list[Path]]:
-    """The tidy rows under ``run_dir`` (de-duplicated) and the files they came from."""
-    import pandas as pd
-
-    from hbench.bench.runner import ID_COLUMNS
-
-    if not run_dir.is_dir():
-        raise InputError(f"{run_dir} is not a folder")
-    files = find_rows(run_dir)
-    if not files:
-        raise InputError(f"no rows.parquet in {run_dir} or below: nothing to report")
-    frames = []
-    for f in files:
-        try:
-            frames.append(pd.read_parquet(f))
-        except Exception as exc:
-            raise InputError(f"cannot read {f}: {type(exc).__name__}: {exc}") from None
-    rows = pd.concat(frames, ignore_index=True)
-    needed = {"method", "quantity", "value", "status", "snr"}
-    missing = sorted(needed - set(rows.columns))
-    if missing:
-        raise InputError(f"{files[0]} is not tidy hbench rows (missing {', '.join(missing)})")
-    if rows.empty:
-        raise InputError(f"the rows under {run_dir} are empty: nothing to report")
-    for col in ID_COLUMNS:
-        if col not in rows.columns:
-            rows[col] = math.nan if col in ("sigma2", "snr_target", "p", "delay") else ""
-    key = [c for c in (*ID_COLUMNS, "quantity") if c in rows.columns]
-    rows = rows.drop_duplicates(subset=key, keep="first").reset_index(drop=True)
-    return rows, files
-
-
-def load_provenance(run_dir: Path) -> list[tuple[Path, dict[str, Any]]]:
-    out = []
-    for f in sorted(run_dir.rglob("provenance.json")):
-        if "report" in f.relative_to(run_dir).parts[:-1]:
-            continue
-        try:
-            out.append((f, json.loads(f.read_text())))
-        except (OSError, ValueError):
-            continue
-    return out
-
-
-def load_examples(run_dir: Path) -> list[dict[str, Any]]:
-    """Examples saved by :func:`hbench.paper.reproduce.save_examples` under ``run_dir``."""
-    import numpy as np
-
-    out = []
-    for f in sorted(run_dir.rglob("examples.npz")):
-        try:
-            data = np.load(f, allow_pickle=False)
-        except (OSError, ValueError):
-            continue
-        with data:
-            ids = sorted({k.split("__")[0] for k in data.files})
-            for i in ids:
-                try:
-                    meta = json.loads(str(data[f"{i}__meta"]))
-                    ex = {
-                        **meta,
-                        "x": data[f"{i}__x"],
-                        "U": data[f"{i}__U"],
-                        "gain": float(data[f"{i}__gain"]),
-                        "estimates": {},
-                    }
-                except KeyError:
-                    continue
-                prefix = f"{i}__est__"
-                for k in data.files:
-                    if k.startswith(prefix):
-                        ex["estimates"][k[len(prefix) :]] = data[k]
-                out.append(ex)
-    return out
 
 
 # --------------------------------------------------------------------------- labels
@@ -161,308 +79,6 @@ def _series_label(series: str) -> str:
     methods, _, facet = series.partition(" | ")
     label = " = ".join(method_label(m) for m in methods.split(" = "))
     return label + (f" | {facet}" if facet else "")
-
-
-# --------------------------------------------------------------------------- statistics
-
-
-def _num(v: Any) -> str:
-    try:
-        f = float(v)
-    except (TypeError, ValueError):
-        return str(v)
-    if math.isnan(f):
-        return "?"
-    return str(int(f)) if f.is_integer() else f"{f:g}"
-
-
-def _facet(df: Any) -> Any:
-    """``"backlash, p=5, delay=3"`` per row (the panels of the fitness figure)."""
-    if not len(df):
-        import pandas as pd
-
-        return pd.Series([], index=df.index, dtype=object)
-    return (
-        df["nonlinearity"].astype(str)
-        + ", p="
-        + df["p"].map(_num)
-        + ", delay="
-        + df["delay"].map(_num)
-    )
-
-
-def _merge_identical(bias: Any) -> Any:
-    """Draw series with identical numbers once, labelled ``a = b`` (e.g. ``wang-lsm`` and
-    ``wang-lsm-inv``: the same estimates, two inner-signal steps)."""
-    import numpy as np
-
-    seen: dict[bytes, str] = {}
-    rename: dict[str, str] = {}
-    drop: list[str] = []
-    for series, g in bias.groupby("series", sort=False):
-        g = g.sort_values(["parameter", "snr"])
-        key = (
-            np.round(g[["bias", "std", "snr"]].to_numpy(float), 12).tobytes()
-            + "|".join(g["parameter"]).encode()
-        )
-        if key in seen:
-            first = seen[key]
-            rename[first] = rename.get(first, first) + " = " + str(series)
-            drop.append(str(series))
-        else:
-            seen[key] = str(series)
-    out = bias[~bias["series"].isin(drop)].copy()
-    out["series"] = out["series"].map(lambda s: rename.get(s, s))
-    return out
-
-
-def cell_stats(rows: Any) -> dict[str, Any]:
-    """Per-cell statistics the figures and tables need (the cell key includes ``snr_target``)."""
-    keys = ["method", "nonlinearity", "p", "delay", "sigma2", "snr_target"]
-    # the columns read below: every other column would be copied along by each selection
-    r = rows[[*keys, "run", "snr", "status", "quantity", "value", "true"]].copy()
-    for k in ("sigma2", "snr_target"):
-        r[k] = r[k].astype(float)
-    r["_s2"] = r["sigma2"].fillna(-1.0)
-    r["_st"] = r["snr_target"].fillna(-1.0)
-    gkeys = ["method", "nonlinearity", "p", "delay", "_s2", "_st"]
-    snr = (
-        r.drop_duplicates([*gkeys, "run"]).groupby(gkeys, dropna=False)["snr"].mean().rename("snr")
-    )
-    ok = r[r["status"] == "ok"]
-    fit = (
-        ok[ok["quantity"] == "fitness"]
-        .groupby(gkeys, dropna=False)["value"]
-        .agg(fitness_mean="mean", fitness_std="std", n="count")
-    )
-    fitness = fit.join(snr, how="left").reset_index()
-    fitness = fitness.merge(r[[*gkeys, *keys[4:]]].drop_duplicates(gkeys), on=gkeys, how="left")
-    fitness["facet"] = _facet(fitness)
-    par = ok[ok["quantity"].str.fullmatch(r"[ab]\d+")]
-    bias = (
-        par.groupby([*gkeys, "quantity"], dropna=False)
-        .agg(
-            true=("true", "first"),
-            mean=("value", "mean"),
-            std=("value", "std"),
-            n=("value", "count"),
-        )
-        .reset_index()
-        .rename(columns={"quantity": "parameter"})
-    )
-    bias["bias"] = bias["mean"] - bias["true"]
-    bias = bias.merge(snr.reset_index(), on=gkeys, how="left")
-    # oracles know the true values: no error to show. The mask is boolean even when ``bias`` is
-    # empty (an empty object mask would select no *columns* and lose them).
-    oracle = bias["method"].map(lambda m: method_info(m)["oracle"]).astype(bool)
-    bias = bias.loc[~oracle]
-    bias["facet"] = _facet(bias)
-    multi = bias["facet"].nunique() > 1
-    bias["series"] = bias["method"] + (" | " + bias["facet"] if multi else "")
-    bias = _merge_identical(bias)
-    sec = ok[ok["quantity"] == "seconds"].groupby("method")["value"].agg(["mean", "std"])
-    timing = sec.reset_index()
-    # ranking among blind methods, per cell
-    blind = [m for m in fitness["method"].unique() if not method_info(m)["oracle"]]
-    f = fitness[fitness["method"].isin(blind) & fitness["fitness_mean"].notna()].copy()
-    cell_key = ["nonlinearity", "p", "delay", "_s2", "_st"]
-    f["rank"] = f.groupby(cell_key, dropna=False)["fitness_mean"].rank(
-        ascending=False, method="average"
-    )
-    f["win"] = f["rank"] == 1.0
-    ranking = (
-        f.groupby("method")
-        .agg(
-            mean_rank=("rank", "mean"),
-            cells=("rank", "count"),
-            wins=("win", "sum"),
-            mean_fitness=("fitness_mean", "mean"),
-        )
-        .reset_index()
-        .sort_values("mean_rank")
-    )
-    return {"fitness": fitness, "bias": bias, "timing": timing, "ranking": ranking}
-
-
-#: The statuses of a run that produced no estimate, in the order the failures table shows them
-#: (other statuses met in the rows follow, sorted).
-NOT_OK = ("failed", "not-identifiable")
-#: The cell of a run, as the aggregated tables and the cell count key it.
-CELL_COLUMNS = ("nonlinearity", "p", "delay", "sigma2", "snr_target")
-
-
-def run_table(rows: Any) -> Any:
-    """One row per run and method (a run's status and error are the same in all its rows).
-
-    Parameters
-    ----------
-    rows : DataFrame
-        Tidy rows (:data:`hbench.bench.schema.TIDY_COLUMNS`).
-
-    Returns
-    -------
-    DataFrame
-        The first row of each run (keyed by every identifier column present), missing statuses
-        as ``"(none)"``.
-    """
-    from hbench.bench.schema import ID_COLUMNS
-
-    key = [c for c in ID_COLUMNS if c in rows.columns]
-    runs = rows.drop_duplicates(key).copy()
-    runs["status"] = runs["status"].astype(object).where(runs["status"].notna(), "(none)")
-    runs["status"] = runs["status"].astype(str)
-    return runs.reset_index(drop=True)
-
-
-def status_counts(rows: Any, runs: Any = None) -> dict[str, int]:
-    """Runs per status over all methods and cells.
-
-    Parameters
-    ----------
-    rows : DataFrame
-        Tidy rows (:data:`hbench.bench.schema.TIDY_COLUMNS`).
-    runs : DataFrame, optional
-        :func:`run_table` of ``rows`` when already computed.
-
-    Returns
-    -------
-    dict of str -> int
-        ``{status: runs}``, most frequent first (a run is one method on one realisation).
-    """
-    counts = (run_table(rows) if runs is None else runs)["status"].value_counts()
-    return {str(k): int(v) for k, v in counts.items()}
-
-
-def _message(error: Any, width: int) -> str:
-    """An error on one line, cut to ``width`` characters (``...`` marks a cut)."""
-    text = "" if error is None or (isinstance(error, float) and math.isnan(error)) else str(error)
-    text = " ".join(text.split()) or "(no message)"
-    return text if len(text) <= width else text[: max(width - 3, 1)] + "..."
-
-
-def failure_table(rows: Any, messages: int = 3, width: int = 200, runs: Any = None) -> Any:
-    """Per method and cell with a run that produced no estimate: the status counts and why.
-
-    Parameters
-    ----------
-    rows : DataFrame
-        Tidy rows (:data:`hbench.bench.schema.TIDY_COLUMNS`).
-    messages : int
-        Distinct messages shown per method and cell, most frequent first (then in order of
-        appearance); the number of the others is given.
-    width : int
-        Characters kept of each message (a cut one ends in ``...``; the rows' ``error`` column
-        holds it whole).
-    runs : DataFrame, optional
-        :func:`run_table` of ``rows`` when already computed (not modified).
-
-    Returns
-    -------
-    DataFrame
-        Columns ``method, nonlinearity, p, delay, sigma2, snr_target`` (``snr_target`` only if a
-        cell has one), ``runs``, ``ok``, one count column per status that is not ``ok``
-        (``failed``, ``not-identifiable``, then any other met), and ``messages``:
-        ``"<message> [<k> runs]; ..."`` from the runs' ``error`` column, ending in ``"(+<n> more
-        distinct messages)"`` when there are more than ``messages``. One row per (method, cell)
-        that has a run that is not ``ok``, methods and cells in order of appearance; empty
-        (same columns) when every run is ``ok``.
-    """
-    import pandas as pd
-
-    runs = run_table(rows) if runs is None else runs.copy()
-    for col in CELL_COLUMNS:
-        if col not in runs.columns:
-            runs[col] = math.nan
-    other = sorted(s for s in set(runs["status"]) if s != "ok" and s not in NOT_OK)
-    statuses = [*NOT_OK, *other]
-    cells = [c for c in CELL_COLUMNS if c != "snr_target" or runs["snr_target"].notna().any()]
-    columns = ["method", *cells, "runs", "ok", *statuses, "messages"]
-    # the level keyed as in cell_stats: sigma2 and snr_target, each missing as -1
-    runs["_s2"] = runs["sigma2"].astype(float).fillna(-1.0)
-    runs["_st"] = runs["snr_target"].astype(float).fillna(-1.0)
-    out = []
-    keys = ["method", "nonlinearity", "p", "delay", "_s2", "_st"]
-    for _, g in runs.groupby(keys, sort=False, dropna=False):
-        bad = g[g["status"] != "ok"]
-        if bad.empty:
-            continue
-        first = g.iloc[0]
-        counts = g["status"].value_counts()
-        # most frequent first; ties in order of appearance (most_common's sort is stable)
-        found = Counter(_message(e, width) for e in bad["error"]).most_common()
-        shown = [f"{m} [{k} run{'s' if k != 1 else ''}]" for m, k in found[:messages]]
-        if len(found) > messages:
-            shown.append(f"(+{len(found) - messages} more distinct messages)")
-        out.append(
-            {
-                **{c: first[c] for c in ("method", *cells)},
-                "runs": len(g),
-                "ok": int(counts.get("ok", 0)),
-                **{s: int(counts.get(s, 0)) for s in statuses},
-                "messages": "; ".join(shown),
-            }
-        )
-    return pd.DataFrame(out, columns=columns)
-
-
-# --------------------------------------------------------------------------- table files
-
-
-def _md_text(text: str) -> str:
-    """``text`` on one line for a Markdown table cell (``\\`` and ``|`` escaped)."""
-    return " ".join(text.split()).replace("\\", "\\\\").replace("|", r"\|")
-
-
-def _text_cells(table: Any, escape: Callable[[str], str]) -> Any:
-    """``table`` with ``escape`` applied to every text cell (numbers left alone)."""
-    import pandas as pd
-
-    out = table.copy()
-    for col in out.columns:
-        if out[col].dtype == object or pd.api.types.is_string_dtype(out[col].dtype):
-            out[col] = out[col].map(lambda v: escape(v) if isinstance(v, str) else v)
-    return out
-
-
-def write_table(
-    out: Path, name: str, table: Any, note: str = "", empty: str = "", wrap_last: bool = False
-) -> None:
-    """Write ``table`` as ``out/name.md`` and ``out/name.tex`` (booktabs).
-
-    Parameters
-    ----------
-    out : Path
-        The report folder.
-    name : str
-        Stem of the files (and the LaTeX caption ``hbench <name>``).
-    table : DataFrame
-        The table; its text cells are escaped for Markdown (``|``) and LaTeX
-        (:func:`hbench.tables.results.tex_escape`, in :func:`hbench.tables.results.to_latex`).
-    note : str
-        A line written above the Markdown table and as a LaTeX comment above the table.
-    empty : str
-        Why the table has no rows: said above the Markdown table and in a row spanning the LaTeX
-        table, when ``table`` is empty.
-    wrap_last : bool
-        Let the last column's text wrap in LaTeX (a ``p`` column; long messages).
-    """
-    from hbench.tables.results import column_spec, tex_escape, to_latex, to_markdown
-
-    lines = [line for line in (note, empty if table.empty else "") if line]
-    md = to_markdown(_text_cells(table, _md_text))
-    (out / f"{name}.md").write_text("".join(f"{_md_text(line)}\n\n" for line in lines) + md)
-    # to_latex escapes the text cells
-    tex = to_latex(table, caption=f"hbench {name}", label=f"tab:hbench-{name}")
-    ncols = len(table.columns)
-    if wrap_last and ncols:
-        spec = column_spec(table)
-        tex = tex.replace("{" + spec + "}", "{" + spec[:-1] + r"p{0.4\linewidth}}", 1)
-    if table.empty and empty:
-        span = rf"\multicolumn{{{ncols}}}{{p{{0.8\linewidth}}}}{{{tex_escape(empty)}}} \\"
-        tex = tex.replace("\\bottomrule", span + "\n\\bottomrule", 1)
-    if note:
-        tex = f"% {' '.join(note.split())}\n" + tex
-    (out / f"{name}.tex").write_text(tex)
 
 
 # --------------------------------------------------------------------------- HTML
@@ -730,7 +346,7 @@ def write_summary(out: Path, run_dir: Path, rows: Any) -> tuple[Any, Any]:
     (out / "summary.md").write_text(headline.fitness_markdown(head, method_label))
     (out / "summary.tex").write_text(headline.fitness_latex(head, method_label))
     bias.to_csv(out / "summary_bias.csv", index=False, float_format="%.10g")
-    (out / "summary_bias.md").write_text(to_markdown(_text_cells(bias, _md_text), ".4g"))
+    (out / "summary_bias.md").write_text(to_markdown(markdown_cells(bias), ".4g"))
     (out / "summary_bias.tex").write_text(headline.bias_latex(bias, method_label))
     return head, bias
 

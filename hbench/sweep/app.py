@@ -699,9 +699,9 @@ def without_estimates(rows: Any) -> list[str]:
     -------
     list of str
         One line per such method and cell: its runs, their statuses and messages, from the
-        report's :func:`hbench.report.build.failure_table`.
+        report's :func:`hbench.report.aggregate.failure_table`.
     """
-    from hbench.report.build import failure_table
+    from hbench.report.aggregate import failure_table
 
     table = failure_table(rows)
     statuses = list(table.columns[table.columns.get_loc("ok") + 1 : -1])  # failed, ...
