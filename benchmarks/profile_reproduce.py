@@ -32,7 +32,7 @@ PHASES = (
     ("  of which its figures (PNG and PDF)", "hbench/report/figures.py", "render_many"),
     ("  of which PDF font subsetting", "backends/_backend_pdf_ps.py", "get_glyphs_subset"),
     ("  of which the headline tables", "hbench/report/build.py", "write_summary"),
-    ("  of which the cell statistics", "hbench/report/build.py", "cell_stats"),
+    ("  of which the cell statistics", "hbench/report/aggregate.py", "cell_stats"),
     ("rows.parquet", "pandas/core/frame.py", "to_parquet"),
 )
 

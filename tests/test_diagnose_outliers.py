@@ -46,9 +46,20 @@ def test_the_cleaned_record_gives_the_class_the_spikes_hid(spiky):
     assert all("eq" in f.info for f in m.info["class_fits"].values())
 
 
-def test_an_unknown_refit_class_set_is_an_error(spiky):
+@pytest.mark.parametrize(("which", "cls"), [("nominal", "linear"), ("both", "linear")])
+def test_the_other_class_sets(spiky, monkeypatch, which, cls):
+    """With the nominal's few classes, and with both sets, the fit part's simulation keeps the
+    few classes' fit on this record (``docs/experiments/extension-classes.md``, section 2)."""
     ctx, nom, det = spiky
-    ol = ef.Outliers()
-    ol.REFIT_CLASSES = "every"
+    monkeypatch.setattr(ef.Outliers, "REFIT_CLASSES", which)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        m = ef.Outliers().extend(ctx, nom, det)
+    assert m.cls == cls
+    assert set(m.info["class_fits"]) < set(core.CLASSES)
+
+
+def test_an_unknown_refit_class_set_is_an_error(monkeypatch):
+    monkeypatch.setattr(ef.Outliers, "REFIT_CLASSES", "every")
     with pytest.raises(ValueError, match="REFIT_CLASSES"):
-        ol.extend(ctx, nom, det)
+        ef.Outliers()

@@ -90,13 +90,35 @@ def test_fit_segment_is_the_fit_parts_tail_all_of_it_fit(changed_record):
             ctx.fit_segment(bad)
 
 
-def test_an_unknown_segment_class_route_is_an_error(changed_record):
-    _, d = changed_record
-    tv = ef.TimeVarying()
-    tv.SEGMENT_CLASS = "graphs"
-    det = next(x for x in d.detections if x.name == "time-varying")
+def test_an_unknown_segment_class_route_is_an_error(monkeypatch):
+    monkeypatch.setattr(ef.TimeVarying, "SEGMENT_CLASS", "graphs")
     with pytest.raises(ValueError, match="SEGMENT_CLASS"):
-        tv.extend(d.ctx, d.nominal, det)
+        ef.TimeVarying()  # made by diagnose outside its guard of the extensions: it stops
+
+
+def test_a_failed_segment_candidate_leaves_the_family_fit_with_a_note(changed_record, monkeypatch):
+    """The blind route failing on the segment: the extension is the nominal family's refit,
+    and says why the other candidate is missing (shown beside its fit on the page)."""
+    from hbench.diagnose.report import _rows
+    from hbench.errors import MethodError
+
+    _, d = changed_record
+    det = next(x for x in d.detections if x.name == "time-varying")
+
+    def fail(*args, **kwargs):
+        raise MethodError("method 'wang-lsm' failed: a test")
+
+    monkeypatch.setattr(nm, "identify_blind", fail)
+    m = ef.TimeVarying().extend(d.ctx, d.nominal, det)
+    assert m.label != "time-varying"  # not the blind candidate
+    assert m.info["notes"] == [
+        "the blind route on the segment failed (method 'wang-lsm' failed: a test)"
+    ]
+    assert "notes" not in d.nominal.model.info
+    ext = d.extensions["time-varying"]
+    monkeypatch.setattr(ext, "model", m)
+    row = next(r for r in _rows(d) if r["effect"] == "time-varying")
+    assert row[f"extended fit ({d.criterion})"].endswith(f"({m.info['notes'][0]})")
 
 
 def test_the_segments_class_is_compared_through_the_dynamics():

@@ -106,10 +106,31 @@ def test_a_public_face_serves_its_module_without_a_warning(old):
     assert set(dir(face)) >= {n for n in vars(new) if not n.startswith("_")}
 
 
+@pytest.mark.parametrize("name", ["find_rows", "NOT_OK", "CELL_COLUMNS"])
+def test_a_name_moved_out_of_the_report_builder_warns_with_its_new_place(name):
+    from hbench.report import build
+
+    new = build.MOVED[name]
+    with pytest.warns(DeprecationWarning, match=re.escape(f"import {name} from {new}")):
+        value = getattr(build, name)
+    assert value is getattr(importlib.import_module(new), name)
+    with pytest.raises(AttributeError, match="no attribute"):
+        build.no_such_name  # noqa: B018
+
+
 def test_a_package_imports_its_submodules_without_a_warning():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        from hbench.report import beyond, build, elements, figures, style  # noqa: F401
+        from hbench.report import (  # noqa: F401
+            aggregate,
+            beyond,
+            build,
+            elements,
+            figures,
+            inputs,
+            style,
+            table_files,
+        )
         from hbench.sweep import app, callbacks, config, hydra_adapter, jobs  # noqa: F401
 
 

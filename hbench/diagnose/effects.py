@@ -108,6 +108,8 @@ class Effect:
         raise NotImplementedError
 
     def extend(self, ctx: nm.Context, nom: nm.Nominal, det: Detection) -> core.Model:
+        """The extended model. What it could not do while still giving a model (a candidate
+        that failed) goes in its ``info["notes"]`` (a list of lines), shown beside its fit."""
         raise NotImplementedError
 
     @staticmethod
@@ -716,7 +718,18 @@ class Outliers(Effect):
             count=count,
         )
 
+    def __init__(self) -> None:
+        self._check()
+
+    def _check(self) -> None:
+        """Raises ``ValueError`` for an unknown :attr:`REFIT_CLASSES`."""
+        if self.REFIT_CLASSES not in ("all", "nominal", "both"):
+            raise ValueError(
+                f"REFIT_CLASSES must be 'all', 'nominal' or 'both', got {self.REFIT_CLASSES!r}"
+            )
+
     def extend(self, ctx: nm.Context, nom: nm.Nominal, det: Detection) -> core.Model:
+        self._check()
         y = ctx.y.copy()
         fit = np.zeros(ctx.N, bool)
         fit[SETTLE : ctx.n_fit] = True  # the validation part stays untouched
@@ -728,8 +741,6 @@ class Outliers(Effect):
             i = np.flatnonzero(mask)
             y[i] = 0.5 * (y[i - 1] + y[i + 1])
         which = self.REFIT_CLASSES
-        if which not in ("all", "nominal", "both"):
-            raise ValueError(f"REFIT_CLASSES must be 'all', 'nominal' or 'both', got {which!r}")
         kw = _nominal_kw(ctx, nom)
         cleaned = replace(ctx, y=y)
         fits = []  # for p = 1 the candidates change nothing: one fit
@@ -737,7 +748,7 @@ class Outliers(Effect):
             fits.append(nm.fit_nominal(cleaned, **kw).model)
         if which in ("all", "both"):
             fits.append(nm.fit_nominal(cleaned, **{**kw, "candidates": None}).model)
-        m = min(fits, key=lambda c: float(np.sum((y - c.simulate(ctx.x))[ctx.fit_idx] ** 2)))
+        m = min(fits, key=lambda c: _finite_or_inf(_rss(cleaned, c, ctx.fit_idx)))
         r = (y - m.simulate(ctx.x))[ctx.fit_idx]
         s = stats.robust_sigma(r)
         w = np.ones(ctx.N)
@@ -892,24 +903,33 @@ class TimeVarying(Effect):
             return int(det.info["at"])
         return round((1.0 - self.LATEST) * ctx.n_fit)
 
-    def extend(self, ctx: nm.Context, nom: nm.Nominal, det: Detection) -> core.Model:
-        b = self.segment_start(ctx, det)
-        idx = ctx.fit_idx[b:]
+    def __init__(self) -> None:
+        self._check()
+
+    def _check(self) -> None:
+        """Raises ``ValueError`` for an unknown :attr:`SEGMENT_CLASS` (checked when the effect
+        is made, so that a diagnosis stops on it rather than marking the extension failed)."""
         if self.SEGMENT_CLASS not in ("equation-error", "graph"):
             raise ValueError(
                 f"SEGMENT_CLASS must be 'equation-error' or 'graph', got {self.SEGMENT_CLASS!r}"
             )
+
+    def extend(self, ctx: nm.Context, nom: nm.Nominal, det: Detection) -> core.Model:
+        self._check()
+        b = self.segment_start(ctx, det)
+        idx = ctx.fit_idx[b:]
         cands = [nm.nominal_family_fit(nom.model, ctx, idx)]
         k0 = -(-b // ctx.p)
         if ctx.p >= 2 and nom.estimate is not None and ctx.k_fit - k0 >= nm.MIN_FIT:
             try:
                 cands.append(nm.arx_refine(self.segment_blind(ctx, nom, k0), ctx, idx))
-            except (InputError, MethodError, np.linalg.LinAlgError, ValueError) as exc:
-                cands[0].info["segment_blind"] = f"failed: {describe(exc)}"
+            except Exception as exc:  # a valid record gets a diagnosis: the family fit stands
+                note = f"the blind route on the segment failed ({describe(exc)})"
+                cands[0] = cands[0].with_(info={**cands[0].info, "notes": [note]})
         m = (
             cands[0]
             if len(cands) == 1
-            else min(cands, key=lambda c: float(np.sum((ctx.y - c.simulate(ctx.x))[idx] ** 2)))
+            else min(cands, key=lambda c: _finite_or_inf(_rss(ctx, c, idx)))
         )
         m.info["segment_start"] = b
         return m
@@ -917,12 +937,24 @@ class TimeVarying(Effect):
     def segment_blind(self, ctx: nm.Context, nom: nm.Nominal, k0: int) -> core.Model:
         """The blind route run again on the fit part's slow samples ``k0`` on (the nominal's
         method and delay multiple), its valve class chosen as :attr:`SEGMENT_CLASS` says.
-        The model's output scale and offset belong to the segment; the caller refits them."""
+        The model's output scale and offset belong to the segment; the caller refits them.
+        Its ``info`` is the segment's own (orders, delay, class fits)."""
+        self._check()
         kw = _nominal_kw(ctx, nom)
         seg = ctx.fit_segment(k0)
         est = nm.identify_blind(seg, kw["method"], delay_multiple=kw["delay_multiple"])
         route = nm.blind_model if self.SEGMENT_CLASS == "equation-error" else nm.model_from_blind
         return route(seg, est, delay_multiple=kw["delay_multiple"], label="time-varying")[0]
+
+
+def _rss(ctx: nm.Context, model: core.Model, idx: np.ndarray) -> float:
+    """The RSS of ``model``'s simulation of ``ctx.y`` from ``ctx.x`` over ``idx``."""
+    return float(np.sum((ctx.y - model.simulate(ctx.x))[idx] ** 2))
+
+
+def _finite_or_inf(v: float) -> float:
+    """``v``, or ``inf`` where it is not finite (a run-away simulation loses a comparison)."""
+    return v if np.isfinite(v) else np.inf
 
 
 # --------------------------------------------------------------------------- order

@@ -245,7 +245,9 @@ def _rows(d: Any) -> list[dict[str, str]]:
                     ""
                     if ext is None
                     else (
-                        _value(ext.val_fit, ".1f", "the extended model does not simulate") + " %"
+                        _value(ext.val_fit, ".1f", "the extended model does not simulate")
+                        + " %"
+                        + "".join(f" ({n})" for n in ext.model.info.get("notes", ()))
                         if ext.model is not None
                         else f"failed: {ext.error}"
                     )

@@ -236,7 +236,7 @@ def tex_escape(text: Any) -> str:
     """``text`` as LaTeX text: on one line, every special character escaped.
 
     The one escaping function of the package: :func:`to_latex` applies it to captions,
-    headers and text cells, and :mod:`hbench.report.build` to the text it writes in LaTeX.
+    headers and text cells, and :mod:`hbench.report.table_files` to the text it writes in LaTeX.
 
     Parameters
     ----------
