@@ -16,6 +16,7 @@ from threadpoolctl import threadpool_info, threadpool_limits
 
 from hbench.diagnose import benchmark_cases as bc
 from hbench.diagnose import classes, core, generator, nominal, stats
+from hbench.diagnose.report import DPI, png_width
 from hbench.diagnose.validate import CONTRACT_EFFECTS, diagnose
 from hbench.model import nonlinearities as nl
 from hbench.plugins import registry
@@ -388,9 +389,11 @@ def test_json_follows_the_contract(run_cli: RunCli, nominal_file: Path, tmp_path
     assert d["gain"] == pytest.approx(d["extended_fit"] - d["baseline_fit"], abs=1e-5)
     html = (tmp_path / "rep" / "report.html").read_text()
     assert "data:image/png;base64," in html and "<img" in html and "src='fig_" not in html
-    # the figures (150 dpi, up to 9 in wide: 1350 px) are wider than the page's 1000-px
-    # column: scaled down to it, not cut off
+    # every figure shown at its size in inches (its text the same size in all of them), and
+    # scaled down to the page's column where that is narrower, not cut off
     assert "figure img{max-width:100%;height:auto}" in html
+    for name, png in figures_of(tmp_path / "rep").items():
+        assert f"style='width:{png_width(png) / DPI:.2f}in'" in html, name
     md = (tmp_path / "rep" / "report.md").read_text()
     assert "## Evidence" in md
     for name in (
@@ -604,3 +607,41 @@ def test_the_diagnosis_is_the_same_whatever_the_blas_thread_count() -> None:
             )
         )
     assert out[0] == out[1]
+
+
+def test_progress_lines_on_stderr_and_quiet(run_cli: RunCli, nominal_file: Path) -> None:
+    """A line on stderr as each step ends (the nominal, the detectors, every extension), the
+    summary alone on stdout; ``--quiet`` drops the progress lines."""
+    status, stdout, stderr = run_cli(["diagnose", str(nominal_file)])
+    assert status == 0, stderr
+    said = [x for x in stderr.splitlines() if x.startswith("[hbench diagnose] ")]
+    assert said[0].startswith("[hbench diagnose] nominal model: ")
+    assert said[1].startswith("[hbench diagnose] detectors: ")
+    n = len(said) - 2
+    assert n >= 1 and said[-1].startswith(f"[hbench diagnose] extension {n} of {n} (")
+    assert all(x.endswith(" s)") for x in said)
+    assert "[hbench diagnose]" not in stdout and "cause:" in stdout
+    status, stdout, stderr = run_cli(["diagnose", str(nominal_file), "--quiet"])
+    assert status == 0 and "[hbench diagnose]" not in stderr and "cause:" in stdout
+
+
+def figures_of(folder: Path) -> dict[str, bytes]:
+    """The PNG figures a report wrote in ``folder``, by file name."""
+    return {p.name: p.read_bytes() for p in sorted(folder.glob("fig_*.png"))}
+
+
+def test_png_width_reads_the_header() -> None:
+    import io
+
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    fig = plt.figure(figsize=(4, 2))
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=DPI)
+    plt.close(fig)
+    assert png_width(buf.getvalue()) == 4 * DPI
+    with pytest.raises(ValueError, match="not a PNG"):
+        png_width(b"GIF89a" + bytes(20))

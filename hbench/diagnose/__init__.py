@@ -100,4 +100,9 @@ def add_parser(subparsers: Any) -> None:
         metavar="M",
         help="known multiple of p in the plant delay (assumption A3, default 0)",
     )
+    p.add_argument(
+        "--quiet",
+        action="store_true",
+        help="no progress lines on stderr (one as each step ends)",
+    )
     p.set_defaults(func=_run)

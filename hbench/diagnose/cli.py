@@ -9,7 +9,7 @@ import warnings
 
 import numpy as np
 
-from hbench.errors import InputError
+from hbench.errors import InputError, tell
 from hbench.system import atomic
 
 #: The longest record diagnosed, in fast samples. The diagnosis holds ~6 KB per fast sample at
@@ -29,6 +29,11 @@ def _summary(d) -> str:
     return "\n".join(lines)
 
 
+def _progress(text: str) -> None:
+    """A progress line on stderr (advisory: a closed stderr never stops the diagnosis)."""
+    tell(f"[hbench diagnose] {text}")
+
+
 def _print_notices(notices: list[str]) -> None:
     """Print the record reader's notices on stderr, one a line.
 
@@ -45,7 +50,8 @@ def run(args: argparse.Namespace) -> int:
     """``hbench diagnose``: read the record, diagnose it, print and write the results.
 
     The five-line summary goes to stdout, or to stderr when ``--json -`` puts the JSON on
-    stdout (which then holds nothing else). Output paths are checked before the work. The
+    stdout (which then holds nothing else); a progress line per step goes to stderr unless
+    ``--quiet``. Output paths are checked before the work. The
     reader's notices go to stderr once the diagnosis has accepted the record: a refused record
     gives its one error line only.
 
@@ -53,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
     ----------
     args : argparse.Namespace
         The parsed command line (``record, p, json, out, method, fit_fraction,
-        delay_multiple, criterion, rule, controller``).
+        delay_multiple, criterion, rule, controller, quiet``).
 
     Returns
     -------
@@ -106,6 +112,7 @@ def run(args: argparse.Namespace) -> int:
                 criterion=getattr(args, "criterion", "auto"),
                 rule=getattr(args, "rule", "auto"),
                 controller=getattr(args, "controller", "auto"),
+                progress=None if getattr(args, "quiet", False) else _progress,
             )
     except InputError:
         # a refused record: its one error line alone (a notice such as "'y' is constant" would

@@ -48,6 +48,9 @@ def caption(d: Any, name: str, text: str) -> str:
 
 #: The formats every figure is written in (PNG for the pages, PDF for print).
 FORMATS: tuple[str, ...] = ("png", "pdf")
+#: Dots per inch of the PNG figures. The page shows each at its size in inches (CSS inches,
+#: 96 px), so that every figure's text has the same size on the page.
+DPI = 150
 
 
 def sim_fit(d: Any, which: str) -> float:
@@ -66,7 +69,7 @@ def _render(fig: Any) -> dict[str, bytes]:
     with matplotlib.rc_context({"pdf.fonttype": 42}):
         for fmt in FORMATS:
             buf = io.BytesIO()
-            fig.savefig(buf, format=fmt, dpi=150, bbox_inches="tight")
+            fig.savefig(buf, format=fmt, dpi=DPI, bbox_inches="tight")
             out[fmt] = buf.getvalue()
     plt.close(fig)
     return out
@@ -329,6 +332,13 @@ def _shape_rows(d: Any) -> list[tuple[str, str]]:
     return [("shape test", text)]
 
 
+def png_width(png: bytes) -> int:
+    """The width in pixels of a PNG image (its header's first field)."""
+    if png[:8] != b"\x89PNG\r\n\x1a\n":
+        raise ValueError("not a PNG image")
+    return int.from_bytes(png[16:20], "big")
+
+
 def render_html(d: Any, figs: dict[str, bytes]) -> str:
     esc = html.escape
     parts = [
@@ -359,8 +369,10 @@ def render_html(d: Any, figs: dict[str, bytes]) -> str:
     for name, text in FIGURES:
         if name in figs:
             b64 = base64.b64encode(figs[name]).decode("ascii")
+            width = png_width(figs[name]) / DPI
             parts.append(
-                f"<figure><img alt='{esc(name)}' src='data:image/png;base64,{b64}'>"
+                f"<figure><img alt='{esc(name)}' style='width:{width:.2f}in' "
+                f"src='data:image/png;base64,{b64}'>"
                 f"<figcaption>{esc(caption(d, name, text))}</figcaption></figure>"
             )
     parts.append("</body></html>")

@@ -47,6 +47,7 @@ under ``detectors`` also ``unexplained`` when a detector fired but no extension 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -581,6 +582,7 @@ def diagnose(
     extend_all: bool = False,
     rule: str = "auto",
     controller: str = "auto",
+    progress: Callable[[str], None] | None = None,
 ) -> Diagnosis:
     """Run the workflow on a one-run record.
 
@@ -593,7 +595,10 @@ def diagnose(
     only those whose detector fired; ``auto`` (default) is ``validation`` for ``p >= 2``,
     where it is calibrated, and ``detectors`` for a plant log (``p = 1``). ``extend_all`` fits
     every extension under the ``detectors`` rule too (for calibration; the cause is still
-    chosen among the fired). It runs with one BLAS thread (restored on return): a
+    chosen among the fired). ``progress``, if given, is called with a line of text as each
+    step ends (the nominal model, the detectors, each extension), once the record has been
+    accepted: a refused record raises before the first line. It runs with one BLAS thread
+    (restored on return): a
     multi-threaded BLAS sums in another order on another core count, so only then are its
     numbers (class scores, margins, fits) the same to the last bit on any machine.
     """
@@ -614,6 +619,7 @@ def diagnose(
             extend_all=extend_all or rule == "validation",
             rule=rule,
             controller=controller,
+            progress=progress,
         )
 
 
@@ -630,8 +636,14 @@ def _diagnose(
     extend_all: bool = False,
     rule: str = "validation",
     controller: str = "auto",
+    progress: Callable[[str], None] | None = None,
 ) -> Diagnosis:
     t0 = time.perf_counter()
+
+    def say(text: str) -> None:
+        if progress is not None:
+            progress(f"{text} ({time.perf_counter() - t0:.1f} s)")
+
     min_gain = MIN_GAIN[rule]
     ctx = nm.make_context(record, fit_fraction)
     nominal = nm.fit_nominal(ctx, method, delay_multiple)
@@ -648,14 +660,16 @@ def _diagnose(
 
     base_fits = fits_of(nominal.model)
     base = base_fits[crit.name]
+    say(f"nominal model: {nominal.chosen} valve, {crit.name} fit {base:.1f} %")
     detections: list[Detection] = []
     extensions: dict[str, Extension] = {}
     instances = [cls() for cls in (effects if effects is not None else effect_classes())]
     for eff in instances:
         detections.append(eff.detect(ctx, nominal))
-    for eff, det in zip(instances, detections, strict=True):
-        if not det.fired and not extend_all:
-            continue
+    said = [d.name for d in detections if d.fired]
+    say(f"detectors: {', '.join(said) if said else 'none'} fired")
+    todo = [(e, d) for e, d in zip(instances, detections, strict=True) if d.fired or extend_all]
+    for i, (eff, det) in enumerate(todo, 1):
         try:
             model = eff.extend(ctx, nominal, det)
             ext_fits = fits_of(model)
@@ -664,6 +678,7 @@ def _diagnose(
             extensions[eff.name] = Extension(
                 eff.name, None, -np.inf, f"{type(exc).__name__}: {exc}"
             )
+        say(f"extension {i} of {len(todo)} ({eff.name}) fitted")
     fired = [d for d in detections if d.fired]
     names = {d.name for d in fired}
     pool = [e for e in extensions.values() if e.name in names]
