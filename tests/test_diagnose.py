@@ -609,10 +609,11 @@ def test_the_diagnosis_is_the_same_whatever_the_blas_thread_count() -> None:
     assert out[0] == out[1]
 
 
-def test_progress_lines_on_stderr_and_quiet(run_cli: RunCli, nominal_file: Path) -> None:
-    """A line on stderr as each step ends (the nominal, the detectors, every extension), the
-    summary alone on stdout; ``--quiet`` drops the progress lines."""
-    status, stdout, stderr = run_cli(["diagnose", str(nominal_file)])
+def test_progress_lines_on_stderr(run_cli: RunCli, nominal_file: Path) -> None:
+    """``--progress on``: a line on stderr as each step ends (the nominal, the detectors, every
+    extension), the summary alone on stdout; by default none where stderr is no terminal (a
+    script's stderr holds an error's one line alone)."""
+    status, stdout, stderr = run_cli(["diagnose", str(nominal_file), "--progress", "on"])
     assert status == 0, stderr
     said = [x for x in stderr.splitlines() if x.startswith("[hbench diagnose] ")]
     assert said[0].startswith("[hbench diagnose] nominal model: ")
@@ -621,7 +622,7 @@ def test_progress_lines_on_stderr_and_quiet(run_cli: RunCli, nominal_file: Path)
     assert n >= 1 and said[-1].startswith(f"[hbench diagnose] extension {n} of {n} (")
     assert all(x.endswith(" s)") for x in said)
     assert "[hbench diagnose]" not in stdout and "cause:" in stdout
-    status, stdout, stderr = run_cli(["diagnose", str(nominal_file), "--quiet"])
+    status, stdout, stderr = run_cli(["diagnose", str(nominal_file)])
     assert status == 0 and "[hbench diagnose]" not in stderr and "cause:" in stdout
 
 

@@ -101,8 +101,10 @@ def add_parser(subparsers: Any) -> None:
         help="known multiple of p in the plant delay (assumption A3, default 0)",
     )
     p.add_argument(
-        "--quiet",
-        action="store_true",
-        help="no progress lines on stderr (one as each step ends)",
+        "--progress",
+        default="auto",
+        choices=("auto", "on", "off"),
+        help="a line on stderr as each step ends: on, off, or auto (default: when stderr is a "
+        "terminal, as git does)",
     )
     p.set_defaults(func=_run)

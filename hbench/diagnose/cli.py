@@ -29,6 +29,17 @@ def _summary(d) -> str:
     return "\n".join(lines)
 
 
+def _shows_progress(setting: str) -> bool:
+    """Whether ``--progress`` (``on``, ``off``, ``auto``: when stderr is a terminal) shows the
+    progress lines."""
+    if setting == "auto":
+        try:
+            return sys.stderr.isatty()
+        except (AttributeError, ValueError):  # a replaced or closed stderr
+            return False
+    return setting == "on"
+
+
 def _progress(text: str) -> None:
     """A progress line on stderr (advisory: a closed stderr never stops the diagnosis)."""
     tell(f"[hbench diagnose] {text}")
@@ -50,8 +61,9 @@ def run(args: argparse.Namespace) -> int:
     """``hbench diagnose``: read the record, diagnose it, print and write the results.
 
     The five-line summary goes to stdout, or to stderr when ``--json -`` puts the JSON on
-    stdout (which then holds nothing else); a progress line per step goes to stderr unless
-    ``--quiet``. Output paths are checked before the work. The
+    stdout (which then holds nothing else); a progress line per step goes to stderr as
+    ``--progress`` says (by default when stderr is a terminal, so that a script's stderr holds
+    an error's one line alone). Output paths are checked before the work. The
     reader's notices go to stderr once the diagnosis has accepted the record: a refused record
     gives its one error line only.
 
@@ -59,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
     ----------
     args : argparse.Namespace
         The parsed command line (``record, p, json, out, method, fit_fraction,
-        delay_multiple, criterion, rule, controller, quiet``).
+        delay_multiple, criterion, rule, controller, progress``).
 
     Returns
     -------
@@ -112,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
                 criterion=getattr(args, "criterion", "auto"),
                 rule=getattr(args, "rule", "auto"),
                 controller=getattr(args, "controller", "auto"),
-                progress=None if getattr(args, "quiet", False) else _progress,
+                progress=_progress if _shows_progress(getattr(args, "progress", "auto")) else None,
             )
     except InputError:
         # a refused record: its one error line alone (a notice such as "'y' is constant" would
