@@ -92,7 +92,10 @@ def tell(text: str, file: Any = None) -> None:
     """Print ``text`` (a progress or summary line) on ``file`` (stderr by default). Such lines
     are advisory: a closed stream (``hbench sweep ... 2>&1 | head``) is ignored, never an error
     that stops the work."""
+    stream = sys.stderr if file is None else file
+    if stream is None:  # no stderr (pythonw, a daemon): print(file=None) would go to stdout
+        return
     try:
-        print(text, file=sys.stderr if file is None else file, flush=True)
+        print(text, file=stream, flush=True)
     except (OSError, ValueError):  # BrokenPipeError, a closed file
         pass

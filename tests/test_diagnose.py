@@ -5,6 +5,7 @@ real plant records in ``test_diagnose_real.py``."""
 from __future__ import annotations
 
 import json
+import sys
 import warnings
 from collections.abc import Callable
 from pathlib import Path
@@ -511,8 +512,8 @@ def test_constant_output_is_refused(run_cli: RunCli, tmp_path: Path) -> None:
 def test_constant_output_is_one_error_line_without_the_notice(
     run_cli: RunCli, tmp_path: Path
 ) -> None:
-    """The review's record (600 rows, h = 0.1 s, x held over 5 samples, y constant): the
-    reader's notice "'y' is constant" came before the error, two lines for one refusal."""
+    """A record of 600 rows (h = 0.1 s, x held over 5 samples, y constant): the reader's
+    notice "'y' is constant" is not printed before the error, so one refusal is one line."""
     path = tmp_path / "flat_y.csv"
     n, p = 600, 5
     x = np.repeat(np.random.default_rng(1).standard_normal(n // p), p)
@@ -646,3 +647,34 @@ def test_png_width_reads_the_header() -> None:
     assert png_width(buf.getvalue()) == 4 * DPI
     with pytest.raises(ValueError, match="not a PNG"):
         png_width(b"GIF89a" + bytes(20))
+
+
+def test_progress_says_which_extension_failed(nominal_file: Path) -> None:
+    """An extension that raises is marked failed, on the page and in its progress line."""
+    from hbench.diagnose.effects import Detection, Effect
+    from hbench.io.readers import read_record
+
+    class Broken(Effect):
+        name = "broken"
+
+        def detect(self, ctx, nom):
+            return Detection(self.name, 2.0, 0.001, 1.0, True, "fires", {})
+
+        def extend(self, ctx, nom, det):
+            raise RuntimeError("cannot extend")
+
+    said: list[str] = []
+    d = diagnose(read_record(nominal_file), effects=[Broken], progress=said.append)
+    assert d.extensions["broken"].model is None
+    assert d.extensions["broken"].error == "RuntimeError: cannot extend"
+    assert said[-1].startswith("extension 1 of 1 (broken) failed (")
+
+
+def test_tell_without_a_stderr_prints_nothing(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from hbench.errors import tell
+
+    monkeypatch.setattr(sys, "stderr", None)
+    tell("a progress line")
+    assert capsys.readouterr().out == ""

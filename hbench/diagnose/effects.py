@@ -9,7 +9,10 @@ registers the classes below; a third-party package can add its own). An effect i
   *fit part*, its p-value (analytic where a distribution is known, else an approximation the
   evidence names) and whether it passes ``threshold``;
 * ``extend(ctx, nominal, detection) -> Model``: the nominal model extended by what the effect
-  adds, fitted on the fit part only.
+  adds, fitted on the fit part only. What it could not do while still giving a model (a
+  candidate that failed) goes in the model's ``info["notes"]``, a list of lines the report
+  shows beside the extension's fit (the JSON does not carry them); an exception it raises
+  marks the extension failed, with its message.
 
 Thresholds are calibrated on records of :mod:`hbench.diagnose.generator` whose seeds the tests
 never use: nominal records (seeds 5000-5199) for the false-positive side, records with each

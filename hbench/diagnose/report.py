@@ -250,7 +250,7 @@ def _rows(d: Any) -> list[dict[str, str]]:
                     else (
                         _value(ext.val_fit, ".1f", "the extended model does not simulate")
                         + " %"
-                        + "".join(f" ({n})" for n in ext.model.info.get("notes", ()))
+                        + "".join(f" ({n})" for n in _notes(ext.model))
                         if ext.model is not None
                         else f"failed: {ext.error}"
                     )
@@ -260,6 +260,12 @@ def _rows(d: Any) -> list[dict[str, str]]:
             }
         )
     return rows
+
+
+def _notes(model: Any) -> list[str]:
+    """An extension model's ``info["notes"]`` (a list of lines; one string is one line)."""
+    notes = model.info.get("notes", ())
+    return [notes] if isinstance(notes, str) else [str(n) for n in notes]
 
 
 def _value(v: float, fmt: str, why: str) -> str:

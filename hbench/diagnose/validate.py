@@ -639,6 +639,8 @@ def _diagnose(
     progress: Callable[[str], None] | None = None,
 ) -> Diagnosis:
     t0 = time.perf_counter()
+    # made first: an effect's settings are checked before any work (a bad one raises)
+    instances = [cls() for cls in (effects if effects is not None else effect_classes())]
 
     def say(text: str) -> None:
         if progress is not None:
@@ -663,7 +665,6 @@ def _diagnose(
     say(f"nominal model: {nominal.chosen} valve, {crit.name} fit {base:.1f} %")
     detections: list[Detection] = []
     extensions: dict[str, Extension] = {}
-    instances = [cls() for cls in (effects if effects is not None else effect_classes())]
     for eff in instances:
         detections.append(eff.detect(ctx, nominal))
     said = [d.name for d in detections if d.fired]
@@ -678,7 +679,8 @@ def _diagnose(
             extensions[eff.name] = Extension(
                 eff.name, None, -np.inf, f"{type(exc).__name__}: {exc}"
             )
-        say(f"extension {i} of {len(todo)} ({eff.name}) fitted")
+        done = "fitted" if extensions[eff.name].model is not None else "failed"
+        say(f"extension {i} of {len(todo)} ({eff.name}) {done}")
     fired = [d for d in detections if d.fired]
     names = {d.name for d in fired}
     pool = [e for e in extensions.values() if e.name in names]
