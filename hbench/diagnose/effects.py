@@ -106,6 +106,21 @@ class Effect:
     summary: ClassVar[str] = ""
     #: The statistic must exceed this for the detector to fire (calibrated, module notes).
     threshold: ClassVar[float] = np.inf
+    #: Settings of the effect (class attributes) and the values each may take.
+    CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {}
+
+    def __init__(self) -> None:
+        self.check_settings()
+
+    def check_settings(self) -> None:
+        """Raises ``ValueError`` for a setting of :attr:`CHOICES` with another value (checked
+        when the effect is made, before a diagnosis's work, and again by ``extend``)."""
+        for name, allowed in self.CHOICES.items():
+            value = getattr(self, name)
+            if value not in allowed:
+                raise ValueError(
+                    f"{name} must be one of {', '.join(map(repr, allowed))}, got {value!r}"
+                )
 
     def detect(self, ctx: nm.Context, nom: nm.Nominal) -> Detection:
         raise NotImplementedError
@@ -206,8 +221,15 @@ def _simulation_bic(ctx: nm.Context, m: core.Model) -> float:
     """BIC of ``m``'s simulation error over the fit part, ``n log(RSS / n) + (2 na + nb) log n``
     (the order and drift extensions choose among their candidates by it)."""
     n = ctx.fit_idx.size
-    rss = float(np.sum((ctx.y - m.simulate(ctx.x))[ctx.fit_idx] ** 2))
+    rss = nm.simulation_rss(m, ctx)
     return float(n * np.log(max(rss, 1e-300) / n) + (2 * m.lin.na + m.lin.nb) * np.log(n))
+
+
+def _sim_rss_or_inf(ctx: nm.Context, m: core.Model, idx: np.ndarray) -> float:
+    """:func:`hbench.diagnose.nominal.simulation_rss` of ``m`` over ``idx``, or ``inf`` where
+    it is not finite (a run-away simulation loses a comparison of candidates)."""
+    rss = nm.simulation_rss(m, ctx, idx)
+    return rss if np.isfinite(rss) else np.inf
 
 
 # --------------------------------------------------------------------------- colored noise
@@ -704,6 +726,7 @@ class Outliers(Effect):
     #: that simulates the cleaned fit part better kept). Measured in
     #: ``docs/experiments/extension-classes.md``.
     REFIT_CLASSES = "all"
+    CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"REFIT_CLASSES": ("all", "nominal", "both")}
 
     def detect(self, ctx: nm.Context, nom: nm.Nominal) -> Detection:
         e = _fit(ctx, nom, nom.resid)
@@ -721,18 +744,8 @@ class Outliers(Effect):
             count=count,
         )
 
-    def __init__(self) -> None:
-        self._check()
-
-    def _check(self) -> None:
-        """Raises ``ValueError`` for an unknown :attr:`REFIT_CLASSES`."""
-        if self.REFIT_CLASSES not in ("all", "nominal", "both"):
-            raise ValueError(
-                f"REFIT_CLASSES must be 'all', 'nominal' or 'both', got {self.REFIT_CLASSES!r}"
-            )
-
     def extend(self, ctx: nm.Context, nom: nm.Nominal, det: Detection) -> core.Model:
-        self._check()
+        self.check_settings()
         y = ctx.y.copy()
         fit = np.zeros(ctx.N, bool)
         fit[SETTLE : ctx.n_fit] = True  # the validation part stays untouched
@@ -751,7 +764,7 @@ class Outliers(Effect):
             fits.append(nm.fit_nominal(cleaned, **kw).model)
         if which in ("all", "both"):
             fits.append(nm.fit_nominal(cleaned, **{**kw, "candidates": None}).model)
-        m = min(fits, key=lambda c: _finite_or_inf(_rss(cleaned, c, ctx.fit_idx)))
+        m = min(fits, key=lambda c: _sim_rss_or_inf(cleaned, c, ctx.fit_idx))
         r = (y - m.simulate(ctx.x))[ctx.fit_idx]
         s = stats.robust_sigma(r)
         w = np.ones(ctx.N)
@@ -817,6 +830,7 @@ class TimeVarying(Effect):
     #: nominal's: :func:`hbench.diagnose.nominal.blind_model`) or ``graph`` (the segment's
     #: blind (x, U) graph alone).
     SEGMENT_CLASS = "equation-error"
+    CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"SEGMENT_CLASS": ("equation-error", "graph")}
 
     def detect(self, ctx: nm.Context, nom: nm.Nominal) -> Detection:
         m = nom.model
@@ -906,19 +920,8 @@ class TimeVarying(Effect):
             return int(det.info["at"])
         return round((1.0 - self.LATEST) * ctx.n_fit)
 
-    def __init__(self) -> None:
-        self._check()
-
-    def _check(self) -> None:
-        """Raises ``ValueError`` for an unknown :attr:`SEGMENT_CLASS` (checked when the effect
-        is made, so that a diagnosis stops on it rather than marking the extension failed)."""
-        if self.SEGMENT_CLASS not in ("equation-error", "graph"):
-            raise ValueError(
-                f"SEGMENT_CLASS must be 'equation-error' or 'graph', got {self.SEGMENT_CLASS!r}"
-            )
-
     def extend(self, ctx: nm.Context, nom: nm.Nominal, det: Detection) -> core.Model:
-        self._check()
+        self.check_settings()
         b = self.segment_start(ctx, det)
         idx = ctx.fit_idx[b:]
         cands = [nm.nominal_family_fit(nom.model, ctx, idx)]
@@ -929,11 +932,7 @@ class TimeVarying(Effect):
             except Exception as exc:  # a valid record gets a diagnosis: the family fit stands
                 note = f"the blind route on the segment failed ({describe(exc)})"
                 cands[0] = cands[0].with_(info={**cands[0].info, "notes": [note]})
-        m = (
-            cands[0]
-            if len(cands) == 1
-            else min(cands, key=lambda c: _finite_or_inf(_rss(ctx, c, idx)))
-        )
+        m = cands[0] if len(cands) == 1 else min(cands, key=lambda c: _sim_rss_or_inf(ctx, c, idx))
         m.info["segment_start"] = b
         return m
 
@@ -942,22 +941,12 @@ class TimeVarying(Effect):
         method and delay multiple), its valve class chosen as :attr:`SEGMENT_CLASS` says.
         The model's output scale and offset belong to the segment; the caller refits them.
         Its ``info`` is the segment's own (orders, delay, class fits)."""
-        self._check()
+        self.check_settings()
         kw = _nominal_kw(ctx, nom)
         seg = ctx.fit_segment(k0)
         est = nm.identify_blind(seg, kw["method"], delay_multiple=kw["delay_multiple"])
         route = nm.blind_model if self.SEGMENT_CLASS == "equation-error" else nm.model_from_blind
         return route(seg, est, delay_multiple=kw["delay_multiple"], label="time-varying")[0]
-
-
-def _rss(ctx: nm.Context, model: core.Model, idx: np.ndarray) -> float:
-    """The RSS of ``model``'s simulation of ``ctx.y`` from ``ctx.x`` over ``idx``."""
-    return float(np.sum((ctx.y - model.simulate(ctx.x))[idx] ** 2))
-
-
-def _finite_or_inf(v: float) -> float:
-    """``v``, or ``inf`` where it is not finite (a run-away simulation loses a comparison)."""
-    return v if np.isfinite(v) else np.inf
 
 
 # --------------------------------------------------------------------------- order

@@ -885,6 +885,13 @@ def hammerstein_pem(
     return core.fit_output(m, ctx.x, ctx.y, idx), fits, chosen
 
 
+def simulation_rss(model: core.Model, ctx: Context, idx: np.ndarray | None = None) -> float:
+    """The RSS of ``model``'s simulation of ``ctx.y`` from ``ctx.x`` over ``idx`` (default:
+    the fit part)."""
+    idx = ctx.fit_idx if idx is None else idx
+    return float(np.sum((ctx.y - model.simulate(ctx.x))[idx] ** 2))
+
+
 def reanchor(model: core.Model, ctx: Context, idx: np.ndarray) -> core.Model:
     """The state a memory actuator starts in, re-chosen by the simulation error on ``idx``.
 
@@ -901,7 +908,7 @@ def reanchor(model: core.Model, ctx: Context, idx: np.ndarray) -> core.Model:
             if d0 is not None:
                 th["d0"] = d0
             cand = core.fit_output(model.with_(theta=th), ctx.x, ctx.y, idx)
-            rss = float(np.sum((ctx.y - cand.simulate(ctx.x))[idx] ** 2))
+            rss = simulation_rss(cand, ctx, idx)
             if best is None or rss < best[0]:
                 best = (rss, cand)
     assert best is not None

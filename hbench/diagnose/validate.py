@@ -667,8 +667,8 @@ def _diagnose(
     extensions: dict[str, Extension] = {}
     for eff in instances:
         detections.append(eff.detect(ctx, nominal))
-    said = [d.name for d in detections if d.fired]
-    say(f"detectors: {', '.join(said) if said else 'none'} fired")
+    fired = [d for d in detections if d.fired]
+    say(f"detectors: {', '.join(d.name for d in fired) if fired else 'none'} fired")
     todo = [(e, d) for e, d in zip(instances, detections, strict=True) if d.fired or extend_all]
     for i, (eff, det) in enumerate(todo, 1):
         try:
@@ -681,7 +681,6 @@ def _diagnose(
             )
         done = "fitted" if extensions[eff.name].model is not None else "failed"
         say(f"extension {i} of {len(todo)} ({eff.name}) {done}")
-    fired = [d for d in detections if d.fired]
     names = {d.name for d in fired}
     pool = [e for e in extensions.values() if e.name in names]
     if rule == "validation":

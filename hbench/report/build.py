@@ -32,16 +32,14 @@ shows :mod:`hbench.report.aggregate`, its table files :mod:`hbench.report.table_
 from __future__ import annotations
 
 import argparse
-import importlib
 import json
 import os
-import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from hbench.aliases import REMOVED_IN
+from hbench.aliases import moved
 from hbench.errors import InputError
 from hbench.report.aggregate import cell_stats, failure_table, run_table, status_counts
 from hbench.report.elements import escape as _esc
@@ -71,16 +69,7 @@ MOVED = {
 }
 
 
-def __getattr__(name: str) -> Any:
-    if name not in MOVED:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    warnings.warn(
-        f"{__name__}.{name} is deprecated and will be removed in hbench {REMOVED_IN}: "
-        f"import {name} from {MOVED[name]}",
-        DeprecationWarning,
-        stacklevel=2,  # the reader's line, so that the default filters show it in __main__
-    )
-    return getattr(importlib.import_module(MOVED[name]), name)
+__getattr__ = moved(__name__, MOVED)
 
 
 # --------------------------------------------------------------------------- labels
