@@ -138,16 +138,16 @@ def test_methods_share_one_structure_selection(monkeypatch):
     """wang-iv after wang-lsm on one record reuses the selection (one table computed, not two)
     and gives the same estimate as alone; bai-fu (OLS selection) and a selection by a closure
     compute their own."""
-    from hbench.ident import identifiers
+    from hbench.ident import blind
 
     calls = []
-    original = identifiers.select_structure
+    original = blind.select_structure
 
     def counting(*args, **kwargs):
         calls.append(1)
         return original(*args, **kwargs)
 
-    monkeypatch.setattr(identifiers, "select_structure", counting)
+    monkeypatch.setattr(blind, "select_structure", counting)
     options = IdentifyOptions()
     iv = registry().get("identifiers", "wang-iv")()
     alone = identify(iv, sim(runs=6, seed=21, noise__sigma2=1e-3)[0], options)
@@ -366,7 +366,7 @@ def test_period_block_view_equals_the_gather(shift, width, t_min):
 
 
 def test_mean_square_equals_nanmean():
-    from hbench.ident.identifiers import _mean_square
+    from hbench.ident.selection import _mean_square
 
     d = np.random.default_rng(2).standard_normal((4, 2501))
     d[:, 0] = np.nan
@@ -455,24 +455,25 @@ def test_ols_and_lsm_share_one_least_squares_solution(noisy):
 
 
 def test_a_group_of_every_run_reads_the_record_without_copying_it(monkeypatch):
-    """``_runs`` gives a read-only view when the group is the whole batch (same values, same
+    """``runs_of`` gives a read-only view when the group is the whole batch (same values, same
     layout), a copy otherwise; the estimates are those computed from copies."""
-    from hbench.ident import identifiers
+    from hbench.ident import blind, selection
 
     a = np.arange(12.0).reshape(4, 3)
-    every = identifiers._runs(a, np.arange(4))
+    every = selection.runs_of(a, np.arange(4))
     assert np.shares_memory(every, a) and not every.flags.writeable
     with pytest.raises(ValueError, match="read-only"):
         every[0, 0] = 1.0
-    some = identifiers._runs(a, np.array([1, 3]))
+    some = selection.runs_of(a, np.array([1, 3]))
     assert not np.shares_memory(some, a) and not some.flags.writeable
     np.testing.assert_array_equal(some, a[[1, 3]])
     fortran = np.asfortranarray(a)
-    assert not np.shares_memory(identifiers._runs(fortran, np.arange(4)), fortran)  # copied
+    assert not np.shares_memory(selection.runs_of(fortran, np.arange(4)), fortran)  # copied
     record, _ = sim(runs=6, seed=31, noise__sigma2=1e-3)
     names = ("wang-lsm", "wang-iv", "bai-fu")
     got = [identify(registry().get("identifiers", n)(), record, IdentifyOptions()) for n in names]
-    monkeypatch.setattr(identifiers, "_runs", lambda a, idx: a[idx])  # always a copy
+    for module in (blind, selection):  # always a copy
+        monkeypatch.setattr(module, "runs_of", lambda a, idx: a[idx])
     record.cache.clear()
     for name, est in zip(names, got, strict=True):
         want = identify(registry().get("identifiers", name)(), record, IdentifyOptions())
@@ -537,7 +538,7 @@ def test_simo_periods_are_those_of_the_simo_system(N, p, shift, t_min):
 def test_cyclic_blocks_from_tables_are_the_computed_ones(p: int) -> None:
     """The selection reads each shift's cyclic block and its last shift from tables built by
     ``_blocks`` and ``_last_of_block`` (p <= 12; p = 13 computes them): the same values."""
-    from hbench.ident.identifiers import _blocks, _last_of_block, _own_blocks
+    from hbench.ident.selection import _blocks, _last_of_block, _own_blocks
 
     rng = np.random.default_rng(p)
     q = rng.random((40, 3, p, p)) < rng.random((40, 3, p, 1))
