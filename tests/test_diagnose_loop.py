@@ -52,6 +52,7 @@ def test_the_controller_is_identified_exactly(ctl: P | PI) -> None:
     else:
         assert got.structure == "P"
         assert got.b0 == pytest.approx(0.1, rel=1e-8) and got.c == pytest.approx(0, abs=1e-9)
+        assert got.describe() == "P, kp 0.1, bias 0"  # a least-squares zero shown as 0
     # a structure given by the option is fitted as given
     assert loop.identify_controller(rec.x[0], e, "PI").structure == "PI"
     with pytest.raises(InputError):

@@ -48,6 +48,9 @@ from hbench.errors import InputError
 STRUCTURES: tuple[str, ...] = ("P", "PI")
 #: The RSS floor of the structure choice, relative to the variation of ``x`` about its mean.
 RSS_FLOOR = 1e-20
+#: :meth:`LoopController.describe` shows a bias at or below this share of the largest ``|x|``
+#: as 0 (a least-squares zero, e.g. 1e-19 for a controller without a bias).
+BIAS_ZERO = 1e-9
 
 
 @dataclass(frozen=True)
@@ -60,6 +63,8 @@ class LoopController:
     b1: float
     c: float
     rss: float
+    #: The largest ``|x|`` of the record it was fitted to (what a bias is small against).
+    x_scale: float = 0.0
 
     @property
     def a(self) -> float:
@@ -68,7 +73,8 @@ class LoopController:
     def describe(self) -> str:
         """One line: the structure and its parameters."""
         if self.structure == "P":
-            return f"P, kp {self.b0:.4g}, bias {self.c:.4g}"
+            c = 0.0 if abs(self.c) <= BIAS_ZERO * self.x_scale else self.c
+            return f"P, kp {self.b0:.4g}, bias {c:.4g}"
         return f"PI, kp {-self.b1:.4g}, ki T {self.b0 + self.b1:.4g}"
 
 
@@ -110,10 +116,11 @@ def identify_controller(x: np.ndarray, e: np.ndarray, structure: str = "auto") -
         rss = float(np.sum((t - X @ th) ** 2))
         n = t.size
         bic = n * np.log(max(rss, floor) / n) + X.shape[1] * np.log(n)
+        scale = float(np.max(np.abs(x)))
         ctl = (
-            LoopController("P", float(th[0]), 0.0, float(th[1]), rss)
+            LoopController("P", float(th[0]), 0.0, float(th[1]), rss, scale)
             if s == "P"
-            else LoopController("PI", float(th[0]), float(th[1]), 0.0, rss)
+            else LoopController("PI", float(th[0]), float(th[1]), 0.0, rss, scale)
         )
         fits[s] = (bic, ctl)
     return min(fits.values(), key=lambda f: f[0])[1]
