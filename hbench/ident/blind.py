@@ -178,7 +178,8 @@ def blind_fit(
     method's own ``denominator``). ``refine(reg, idx, tau, nb) -> (theta, sigma2)``, when given,
     replaces ``denominator`` for the final estimate once the structure is known.
     Methods whose selection estimate is the same module-level function (e.g.
-    :func:`bias_compensated_fit`, :func:`ols_fit`), with the same rule and options, share the
+    :func:`~hbench.ident.selection.bias_compensated_fit`,
+    :func:`~hbench.ident.selection.ols_fit`), with the same rule and options, share the
     selected structure on one record (kept in ``record.cache``) instead of computing the same
     tables again: such a function sees the regression (built from ``y``) and nothing else. A
     closure may read more (the reference, say) and is never shared.
