@@ -106,6 +106,7 @@ def identify_controller(x: np.ndarray, e: np.ndarray, structure: str = "auto") -
     if x.size < 4:
         raise InputError("the record is too short to identify its controller")
     floor = RSS_FLOOR * max(float(np.sum((x - x.mean()) ** 2)), 1e-300)
+    scale = float(np.max(np.abs(x)))  # what describe() judges a bias small against
     fits: dict[str, tuple[float, LoopController]] = {}
     for s in STRUCTURES if wanted == "auto" else (wanted,):
         if s == "P":
@@ -116,7 +117,6 @@ def identify_controller(x: np.ndarray, e: np.ndarray, structure: str = "auto") -
         rss = float(np.sum((t - X @ th) ** 2))
         n = t.size
         bic = n * np.log(max(rss, floor) / n) + X.shape[1] * np.log(n)
-        scale = float(np.max(np.abs(x)))
         ctl = (
             LoopController("P", float(th[0]), 0.0, float(th[1]), rss, scale)
             if s == "P"
