@@ -22,7 +22,7 @@ import tempfile
 PHASES = (
     ("the levels (simulation, 8 methods, Figures 4-5)", "hbench/paper/levels.py", "run_levels"),
     ("  of which the simulation", "hbench/sim/simulate.py", "simulate"),
-    ("  of which the eight methods", "hbench/ident/identifiers.py", "identify"),
+    ("  of which the eight methods", "hbench/ident/invoke.py", "identify"),
     ("  of which Figures 4 and 5", "hbench/paper/reproduce.py", "draw_example"),
     ("  of which matplotlib's import", "hbench/paper/reproduce.py", "warm_up"),
     ("Tables 1-2", "hbench/paper/levels.py", "run_tables12"),

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import ast
 import importlib
+import importlib.util
 import re
 import subprocess
 import sys
@@ -324,3 +325,28 @@ def test_a_broken_contract_fails(tmp_path):
     done = _lint_imports("--config", str(config))
     assert done.returncode == 1, done.stdout + done.stderr
     assert "upside down BROKEN" in done.stdout
+
+
+def test_the_profilers_phases_name_functions_that_exist():
+    """``benchmarks/profile_reproduce.py`` finds each phase by the file and name of a function;
+    a phase whose function moved would read 0 s without an error. Every phase in hbench names a
+    function defined at module level or in a class of that file."""
+    spec = importlib.util.spec_from_file_location(
+        "profile_reproduce", REPO / "benchmarks" / "profile_reproduce.py"
+    )
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    checked = 0
+    for label, suffix, name in module.PHASES:
+        if not suffix.startswith("hbench/"):
+            continue  # a library's file (pandas, matplotlib): not this project's layout
+        path = REPO / suffix
+        assert path.is_file(), f"{label.strip()}: {suffix} does not exist"
+        defined = {
+            node.name
+            for node in ast.walk(ast.parse(path.read_text()))
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef)
+        }
+        assert name in defined, f"{label.strip()}: {suffix} defines no function {name}"
+        checked += 1
+    assert checked >= 5
