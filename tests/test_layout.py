@@ -330,7 +330,8 @@ def test_a_broken_contract_fails(tmp_path):
 def test_the_profilers_phases_name_functions_that_exist():
     """``benchmarks/profile_reproduce.py`` finds each phase by the file and name of a function;
     a phase whose function moved would read 0 s without an error. Every phase in hbench names a
-    function defined at module level or in a class of that file."""
+    function defined anywhere in that file (module level, in a class, or nested, as
+    ``draw_example`` and ``warm_up`` are in ``reproduce()``)."""
     spec = importlib.util.spec_from_file_location(
         "profile_reproduce", REPO / "benchmarks" / "profile_reproduce.py"
     )
