@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import ast
 import importlib
-import importlib.util
 import re
 import subprocess
 import sys
@@ -332,13 +331,10 @@ def test_the_profilers_phases_name_functions_that_exist():
     a phase whose function moved would read 0 s without an error. Every phase in hbench names a
     function defined anywhere in that file (module level, in a class, or nested, as
     ``draw_example`` and ``warm_up`` are in ``reproduce()``)."""
-    spec = importlib.util.spec_from_file_location(
-        "profile_reproduce", REPO / "benchmarks" / "profile_reproduce.py"
-    )
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    from benchmarks.profile_reproduce import PHASES
+
     checked = 0
-    for label, suffix, name in module.PHASES:
+    for label, suffix, name in PHASES:
         if not suffix.startswith("hbench/"):
             continue  # a library's file (pandas, matplotlib): not this project's layout
         path = REPO / suffix
