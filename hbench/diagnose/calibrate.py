@@ -52,7 +52,7 @@ OPTIONS: dict[str, Any] = {
 def run_case(case: gen.Case | bc.BenchCase) -> dict[str, Any]:
     """Diagnose the record of ``case`` (a design case of :mod:`hbench.diagnose.generator` or a
     benchmark case of :mod:`hbench.diagnose.benchmark_cases`) in memory; a row of plain data."""
-    from hbench.diagnose.validate import Criterion, diagnose
+    from hbench.diagnose.validate import Criterion, diagnose, half_gains
 
     if isinstance(case, bc.BenchCase):
         rec, plant = bc.simulate_bench_case(case), case.plant
@@ -92,6 +92,7 @@ def run_case(case: gen.Case | bc.BenchCase) -> dict[str, Any]:
         stats={x.name: x.statistic for x in d.detections},
         fired=[x.name for x in d.detections if x.fired],
         ext={k: v.val_fit - d.baseline_fit for k, v in d.extensions.items()},
+        ext_halves={k: half_gains(v, d.baseline_halves) for k, v in d.extensions.items()},
         fits={"nominal": d.fits["nominal"], **{k: v.fits for k, v in d.extensions.items()}},
         p_values={x.name: x.p_value for x in d.detections},
         thresholds={x.name: x.threshold for x in d.detections},

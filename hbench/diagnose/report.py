@@ -13,6 +13,7 @@ import numpy as np
 
 from hbench.diagnose import core, stats
 from hbench.diagnose.effects import format_p
+from hbench.diagnose.validate import half_gains
 from hbench.system import atomic
 
 FIGURES: tuple[tuple[str, str], ...] = (
@@ -255,11 +256,26 @@ def _rows(d: Any) -> list[dict[str, str]]:
                         else f"failed: {ext.error}"
                     )
                 ),
+                f"gain on the halves ({d.criterion}, points)": _half_gains(d, ext),
                 "cause": "yes" if det.name == d.cause else "",
                 "evidence": det.evidence,
             }
         )
     return rows
+
+
+def _half_gains(d: Any, ext: Any) -> str:
+    """An extension's gain on the first and the second half of the validation part, in points
+    (the ``validation`` rule reads both where the effect's detector stayed quiet:
+    :data:`hbench.diagnose.validate.HALVES`)."""
+    if ext is None or ext.model is None:
+        return ""
+    g = half_gains(ext, d.baseline_halves)
+    if g is None:
+        return "n/a: not measured"
+    if not all(np.isfinite(g)):
+        return "n/a: a half's fit is not a number"
+    return f"{g[0]:+.1f} / {g[1]:+.1f}"
 
 
 def _notes(model: Any) -> list[str]:
