@@ -90,7 +90,8 @@ def add_parser(subparsers: Any) -> None:
         default="auto",
         choices=("auto", "validation", "detectors"),
         help="how the cause is chosen: validation (every effect's extension is fitted, the one "
-        "that gains the most validation fit is named), detectors (only the extensions of the "
+        "that gains the most validation fit is named; with its detector quiet, it must gain on "
+        "each half of the validation part too), detectors (only the extensions of the "
         "detectors that fired), or auto (default: validation for p >= 2, detectors for p = 1)",
     )
     p.add_argument(

@@ -256,7 +256,9 @@ def _rows(d: Any) -> list[dict[str, str]]:
                         else f"failed: {ext.error}"
                     )
                 ),
-                f"gain on the halves ({d.criterion}, points)": _half_gains(d, ext),
+                f"gain: whole; 1st / 2nd half of validation ({d.criterion}, points)": (
+                    _half_gains(d, ext)
+                ),
                 "cause": "yes" if det.name == d.cause else "",
                 "evidence": det.evidence,
             }
@@ -265,17 +267,23 @@ def _rows(d: Any) -> list[dict[str, str]]:
 
 
 def _half_gains(d: Any, ext: Any) -> str:
-    """An extension's gain on the first and the second half of the validation part, in points
-    (the ``validation`` rule reads both where the effect's detector stayed quiet:
-    :data:`hbench.diagnose.validate.HALVES`)."""
+    """An extension's gain in points on the whole validation part and on its first and second
+    half; the ``validation`` rule reads the halves where the effect's detector stayed quiet
+    (:data:`hbench.diagnose.validate.HALVES`), and the cell says where it does not."""
     if ext is None or ext.model is None:
         return ""
+    whole = f"{ext.val_fit - d.baseline_fit:+.1f} whole"
     g = half_gains(ext, d.baseline_halves)
     if g is None:
-        return "n/a: not measured"
+        return f"{whole}; halves n/a: not measured"
     if not all(np.isfinite(g)):
-        return "n/a: a half's fit is not a number"
-    return f"{g[0]:+.1f} / {g[1]:+.1f}"
+        return f"{whole}; halves n/a: a half's fit is not finite (a constant half)"
+    text = f"{whole}; {g[0]:+.1f} / {g[1]:+.1f}"
+    if d.rule != "validation":
+        return f"{text} (halves not read: {d.rule} rule)"
+    if ext.detected:
+        return f"{text} (halves not read: detector fired)"
+    return text
 
 
 def _notes(model: Any) -> list[str]:

@@ -38,7 +38,8 @@ it needs its detector); under ``detectors``, the fired effects gaining
 ``MIN_GAIN["detectors"]``.
 The cause is the candidate that gains the most (with one parsimony rule, :data:`PARSIMONY`: a
 noise model that gains nearly as much as one more pole is preferred to it, whether or not its
-detector fired; with its detector quiet, on each half too). With no candidate:
+detector fired; with its detector quiet, it must also gain ``MIN_GAIN["validation"]`` on each
+half). With no candidate:
 ``none`` when the nominal model explains the validation part better than its mean (fit above
 :data:`NONE_MIN_FIT`), else ``unexplained``;
 under ``detectors`` also ``unexplained`` when a detector fired but no extension gained.
@@ -84,7 +85,8 @@ CAUSE_RULES: tuple[str, ...] = ("validation", "detectors")
 #: rule (the ``validation`` rule's fired extensions; ``detectors``: every candidate).
 MIN_GAIN: dict[str, float] = {"validation": 2.0, "detectors": 0.5}
 #: ``validation`` rule: an extension whose detector stayed quiet is a candidate when it gains
-#: at least this many points (a gain the detector missed).
+#: at least this many points (a gain the detector missed), on the whole validation part and on
+#: each of its halves (:data:`HALVES`).
 MIN_GAIN_UNDETECTED = 20.0
 #: Effects that are candidates only when their detector fired (never through
 #: :data:`MIN_GAIN_UNDETECTED`): the colored-noise extensions re-fit the nominal's dynamics
@@ -166,6 +168,25 @@ class Diagnosis:
     def gain(self) -> float:
         return self.extended_fit - self.baseline_fit
 
+    def set_aside(self) -> list[tuple[Extension, tuple[float, float]]]:
+        """The extensions the ``validation`` rule set aside for their halves alone: detector
+        quiet, not of :data:`DETECTED_ONLY`, :data:`MIN_GAIN_UNDETECTED` gained on the whole
+        validation part but not on each half; with their gains on the two halves."""
+        if self.rule != "validation":
+            return []
+        out = []
+        for e in self.extensions.values():
+            h = half_gains(e, self.baseline_halves)
+            if (
+                e.name in DETECTED_ONLY
+                or h is None
+                or not clears(e, self.baseline_fit, None, MIN_GAIN_UNDETECTED)
+                or clears(e, self.baseline_fit, self.baseline_halves, MIN_GAIN_UNDETECTED)
+            ):
+                continue
+            out.append((e, h))
+        return out
+
     @property
     def why(self) -> str:
         """One line: why the cause is what it is."""
@@ -178,20 +199,32 @@ class Diagnosis:
                 f"no fired detector's extension gains {g:g} points of {crit} fit and no other "
                 f"gains {MIN_GAIN_UNDETECTED:g}{where}"
             )
+            aside = self.set_aside()
+            aside_note = (
+                "; set aside, their detectors quiet and their gains not on both halves: "
+                + ", ".join(
+                    f"{e.name} ({e.val_fit - self.baseline_fit:+.1f}; halves {h[0]:+.1f} / "
+                    f"{h[1]:+.1f})"
+                    for e, h in aside
+                )
+                if aside
+                else ""
+            )
             if self.cause == "none":
                 return (
                     f"{missed}; the nominal model ({self.baseline_fit:.1f} %) explains the "
-                    f"validation part better than its mean{fired_note}"
+                    f"validation part better than its mean{fired_note}{aside_note}"
                 )
             if self.cause == "unexplained":
                 return (
                     f"{missed}, and the nominal model's fit ({self.baseline_fit:.1f} %) is no "
-                    f"better than the validation part's mean{fired_note}"
+                    f"better than the validation part's mean{fired_note}{aside_note}"
                 )
             det = next((d for d in self.detections if d.name == self.cause), None)
             said = "" if det is None else f" (its detector: {'fired' if det.fired else 'quiet'})"
             return (
-                f"{self.cause}'s extension gains the most {crit} fit, {self.gain:+.1f} points{said}"
+                f"{self.cause}'s extension gains the most {crit} fit among the candidates, "
+                f"{self.gain:+.1f} points{said}{aside_note}"
             )
         if self.cause == "none":
             return (
@@ -549,7 +582,7 @@ def clears(e: Extension, base: float, base_halves: tuple[float, float] | None, b
     """Whether the extension ``e`` gains at least ``bar`` points over the nominal's validation
     fit ``base``; with :data:`HALVES`, for an extension whose detector stayed quiet, over the
     nominal's fit on each half of the validation part (``base_halves``) too. Halves not
-    measured, or a nominal half fit that is not a number (a constant half), leave the whole to
+    measured, or a nominal half fit that is not finite (a constant half), leave the whole to
     decide. An extension without a model, or with a fit that is not a number, gains nothing."""
     if e.model is None or not np.isfinite(e.val_fit) or e.val_fit - base < bar:
         return False
@@ -663,7 +696,8 @@ def diagnose(
     ``criterion`` names the validation criterion (:func:`choose_criterion`); ``also`` adds
     criteria whose fits are recorded beside it (``Diagnosis.fits``, ``Extension.fits``).
     ``rule`` (:data:`CAUSE_RULES`) says how the cause is chosen: ``validation`` fits every
-    effect's extension and names the one that gains the most validation fit; ``detectors``
+    effect's extension and names the one that gains the most validation fit (among the
+    candidates of :data:`MIN_GAIN`, :data:`MIN_GAIN_UNDETECTED` and :data:`HALVES`); ``detectors``
     only those whose detector fired; ``auto`` (default) is ``validation`` for ``p >= 2``,
     where it is calibrated, and ``detectors`` for a plant log (``p = 1``). ``extend_all`` fits
     every extension under the ``detectors`` rule too (for calibration; the cause is still
