@@ -116,6 +116,17 @@ def test_half_fits_split_the_validation_part() -> None:
     assert second < 100.0
 
 
+def test_the_evidence_cell_says_when_the_halves_are_off(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The cell and the rule read one predicate
+    (:func:`~hbench.diagnose.validate.unread_halves`)."""
+    d = SimpleNamespace(baseline_halves=BASE_HALVES, baseline_fit=BASE, rule="validation")
+    quiet = _ext("drift", 25.0, (45.0, 5.0))
+    assert _half_gains(d, quiet) == "+25.0 whole; +45.0 / +5.0"
+    monkeypatch.setattr(validate, "HALVES", False)
+    assert _half_gains(d, quiet).endswith("(halves not read: HALVES is off)")
+    assert validate.clears(quiet, BASE, BASE_HALVES, 20.0)
+
+
 def test_the_evidence_table_gives_the_gain_of_each_half() -> None:
     d = SimpleNamespace(baseline_halves=BASE_HALVES, baseline_fit=BASE, rule="validation")
     assert _half_gains(d, _ext("drift", 9.0, (7.5, -1.3))) == "+9.0 whole; +7.5 / -1.3"

@@ -13,7 +13,7 @@ import numpy as np
 
 from hbench.diagnose import core, stats
 from hbench.diagnose.effects import format_p
-from hbench.diagnose.validate import half_gains
+from hbench.diagnose.validate import half_gains, unread_halves
 from hbench.system import atomic
 
 FIGURES: tuple[tuple[str, str], ...] = (
@@ -268,8 +268,8 @@ def _rows(d: Any) -> list[dict[str, str]]:
 
 def _half_gains(d: Any, ext: Any) -> str:
     """An extension's gain in points on the whole validation part and on its first and second
-    half; the ``validation`` rule reads the halves where the effect's detector stayed quiet
-    (:data:`hbench.diagnose.validate.HALVES`), and the cell says where it does not."""
+    half; the cell says where the cause rule does not read the halves
+    (:func:`hbench.diagnose.validate.unread_halves`)."""
     if ext is None or ext.model is None:
         return ""
     whole = f"{ext.val_fit - d.baseline_fit:+.1f} whole"
@@ -279,11 +279,8 @@ def _half_gains(d: Any, ext: Any) -> str:
     if not all(np.isfinite(g)):
         return f"{whole}; halves n/a: a half's fit is not finite (a constant half)"
     text = f"{whole}; {g[0]:+.1f} / {g[1]:+.1f}"
-    if d.rule != "validation":
-        return f"{text} (halves not read: {d.rule} rule)"
-    if ext.detected:
-        return f"{text} (halves not read: detector fired)"
-    return text
+    why = unread_halves(ext, d.rule)
+    return f"{text} (halves not read: {why})" if why else text
 
 
 def _notes(model: Any) -> list[str]:

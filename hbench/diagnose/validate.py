@@ -135,7 +135,8 @@ class Extension:
     #: The chosen criterion's fit on the first and on the second half of the validation part
     #: (:func:`half_fits`); ``None``: not measured (then :func:`clears` reads the whole only).
     halves: tuple[float, float] | None = None
-    #: Whether the effect's detector fired (:func:`clears` reads the halves only where not).
+    #: Whether the effect's detector fired (the halves are read only where not:
+    #: :func:`unread_halves`).
     detected: bool = False
 
 
@@ -578,6 +579,19 @@ def half_gains(e: Extension, base_halves: tuple[float, float] | None) -> tuple[f
     return (e.halves[0] - base_halves[0], e.halves[1] - base_halves[1])
 
 
+def unread_halves(e: Extension, rule: str = "validation") -> str:
+    """Why the cause rule ``rule`` does not read the extension's gains on the two halves of the
+    validation part (``""`` where it reads them: :data:`HALVES`, the ``validation`` rule, the
+    effect's detector quiet)."""
+    if rule != "validation":
+        return f"{rule} rule"
+    if not HALVES:
+        return "HALVES is off"
+    if e.detected:
+        return "detector fired"
+    return ""
+
+
 def clears(e: Extension, base: float, base_halves: tuple[float, float] | None, bar: float) -> bool:
     """Whether the extension ``e`` gains at least ``bar`` points over the nominal's validation
     fit ``base``; with :data:`HALVES`, for an extension whose detector stayed quiet, over the
@@ -587,9 +601,9 @@ def clears(e: Extension, base: float, base_halves: tuple[float, float] | None, b
     if e.model is None or not np.isfinite(e.val_fit) or e.val_fit - base < bar:
         return False
     g = half_gains(e, base_halves)
-    if HALVES and not e.detected and g is not None and np.all(np.isfinite(base_halves)):
-        return all(h >= bar for h in g)  # a half of the extension that is nan gains nothing
-    return True
+    if g is None or unread_halves(e) or not np.all(np.isfinite(base_halves)):
+        return True
+    return all(h >= bar for h in g)  # a half of the extension that is nan gains nothing
 
 
 def loop_criterion(ctx: nm.Context, structure: str = "auto") -> Criterion | None:
