@@ -108,3 +108,30 @@ def test_the_cli_chooses_on_the_closed_loop_fit(run_cli, tmp_path) -> None:
     assert status == 0, err
     assert json.loads(out.read_text())["criterion"] == "closed-loop"
     assert "closed-loop" in stdout and "controller P, kp 0.1" in stdout
+
+
+def test_a_diverging_loop_gives_an_infinite_error_without_warnings() -> None:
+    """Positive feedback through an integrating model: the re-simulated output leaves the
+    floating-point range. The rest of ``y_hat`` is ``inf`` (``x_hat`` ``nan``), the fit is
+    ``-inf`` and the findings print it as diverging; numpy's overflow warnings do not reach the
+    user (any warning fails this test)."""
+    import warnings
+
+    p, K = 5, 400
+    lin = core.Linear(a=np.array([1.0, -1.0]), b=np.array([0.0, 1.0]), delay=0)
+    model = core.Model(cls="linear", theta={}, lin=lin, p=p)
+    ctl = loop.LoopController("P", -50.0, 0.0, 0.0, 0.0)
+    r = np.ones(K)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        y_hat, x_hat = loop.simulate_loop(model, ctl, r, 0.0)
+        fit = core.fit_percent(np.sin(np.arange(K * p) / 7.0), y_hat)
+    gone = np.flatnonzero(~np.isfinite(y_hat))
+    assert gone.size and np.all(y_hat[gone[0] :] == np.inf)
+    assert np.all(np.isfinite(y_hat[: gone[0]]))
+    assert np.isnan(x_hat[gone[0] // p + 1 :]).all()
+    assert fit == float("-inf")
+    assert va.format_fit(fit).endswith("(diverges)")
+    # a stable loop (negative feedback, small gain) is untouched by the check
+    y_ok, _ = loop.simulate_loop(model, dataclasses.replace(ctl, b0=0.01), r, 0.0)
+    assert np.all(np.isfinite(y_ok))

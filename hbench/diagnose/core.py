@@ -37,12 +37,15 @@ N_SHAPE: dict[str, int] = {
 
 
 def fit_percent(y: np.ndarray, yhat: np.ndarray) -> float:
-    """``100 (1 - ||y - yhat|| / ||y - mean y||)``; ``-inf`` for a constant ``y``."""
+    """``100 (1 - ||y - yhat|| / ||y - mean y||)``; ``-inf`` for a constant ``y`` and for a
+    ``yhat`` so far off that the norm of the error overflows (a diverging simulation)."""
     y = np.asarray(y, float)
     den = float(np.linalg.norm(y - y.mean()))
     if not den > 0:
         return float("-inf")
-    return float(100.0 * (1.0 - np.linalg.norm(y - np.asarray(yhat, float)) / den))
+    with np.errstate(over="ignore"):
+        num = np.linalg.norm(y - np.asarray(yhat, float))
+    return float(100.0 * (1.0 - num / den))
 
 
 # --------------------------------------------------------------------------- actuator maps

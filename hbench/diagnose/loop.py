@@ -32,6 +32,10 @@ model gets wrong at low frequencies as it corrects the process noise, so the err
 integrate on a slow plant (poles near 1) as the open-loop simulation's does; what remains is
 the error of the model inside the loop's bandwidth. Noise-free, with the record's own model,
 it reproduces ``y``.
+
+A model and controller whose loop is unstable diverge: once the re-simulated output leaves the
+floating-point range, the rest of ``y_hat`` is ``inf`` and of ``x_hat`` ``nan`` (the fit is
+then ``-inf``, which the findings print as diverging), without numpy's overflow warnings.
 """
 
 from __future__ import annotations
@@ -162,17 +166,21 @@ def simulate_loop(
     y_hat, x_hat, u = np.empty(N), np.empty(K), np.empty(K)
     valve = core.nl_stepper(model.cls, model.theta, float(x0))
     e_prev = 0.0
-    for n in range(K):
-        t0 = n * p
-        # strictly proper G: its output at p n is the filter state's, before u(n) enters
-        e = r[n] - (model.gain * zi[0] + extra[t0])
-        if n == 0:
-            x_hat[n] = x0
-        else:
-            x_hat[n] = ctl.a * x_hat[n - 1] + ctl.b0 * e + ctl.b1 * e_prev + ctl.c
-        e_prev = e
-        u[n] = valve(x_hat[n])
-        un = u[n - model.shift] if n >= model.shift else u[0]
-        z, zi = signal.lfilter(num, a, np.full(p, un - u[0]), zi=zi)
-        y_hat[t0 : t0 + p] = model.gain * z + extra[t0 : t0 + p]
+    with np.errstate(over="ignore", invalid="ignore"):  # a diverging loop: checked below
+        for n in range(K):
+            t0 = n * p
+            # strictly proper G: its output at p n is the filter state's, before u(n) enters
+            e = r[n] - (model.gain * zi[0] + extra[t0])
+            if n == 0:
+                x_hat[n] = x0
+            else:
+                x_hat[n] = ctl.a * x_hat[n - 1] + ctl.b0 * e + ctl.b1 * e_prev + ctl.c
+            e_prev = e
+            u[n] = valve(x_hat[n])
+            un = u[n - model.shift] if n >= model.shift else u[0]
+            z, zi = signal.lfilter(num, a, np.full(p, un - u[0]), zi=zi)
+            y_hat[t0 : t0 + p] = model.gain * z + extra[t0 : t0 + p]
+            if not (np.all(np.isfinite(y_hat[t0 : t0 + p])) and np.isfinite(x_hat[n])):
+                y_hat[t0:], x_hat[n:] = np.inf, np.nan  # diverged (module notes)
+                break
     return y_hat, x_hat
