@@ -110,28 +110,55 @@ def test_the_cli_chooses_on_the_closed_loop_fit(run_cli, tmp_path) -> None:
     assert "closed-loop" in stdout and "controller P, kp 0.1" in stdout
 
 
-def test_a_diverging_loop_gives_an_infinite_error_without_warnings() -> None:
+@pytest.mark.parametrize("b0", [-50.0, -1e200])
+def test_a_diverging_loop_gives_an_infinite_error_without_warnings(b0: float) -> None:
     """Positive feedback through an integrating model: the re-simulated output leaves the
-    floating-point range. The rest of ``y_hat`` is ``inf`` (``x_hat`` ``nan``), the fit is
-    ``-inf`` and the findings print it as diverging; numpy's overflow warnings do not reach the
+    floating-point range (inside the filter at kp 50; in the controller's product at 1e200).
+    From the first infinite sample on ``y_hat`` is that infinity, ``x_hat`` ``nan`` after its
+    period, the fit ``-inf``, printed as diverging; numpy's overflow warnings do not reach the
     user (any warning fails this test)."""
     import warnings
 
     p, K = 5, 400
     lin = core.Linear(a=np.array([1.0, -1.0]), b=np.array([0.0, 1.0]), delay=0)
     model = core.Model(cls="linear", theta={}, lin=lin, p=p)
-    ctl = loop.LoopController("P", -50.0, 0.0, 0.0, 0.0)
+    ctl = loop.LoopController("P", b0, 0.0, 0.0, 0.0)
     r = np.ones(K)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         y_hat, x_hat = loop.simulate_loop(model, ctl, r, 0.0)
         fit = core.fit_percent(np.sin(np.arange(K * p) / 7.0), y_hat)
     gone = np.flatnonzero(~np.isfinite(y_hat))
-    assert gone.size and np.all(y_hat[gone[0] :] == np.inf)
+    assert gone.size and np.all(np.isinf(y_hat[gone[0] :]))
+    assert np.all(y_hat[gone[0] :] == y_hat[gone[0]])  # one infinity, the overflow's sign
     assert np.all(np.isfinite(y_hat[: gone[0]]))
-    assert np.isnan(x_hat[gone[0] // p + 1 :]).all()
+    m = int(np.flatnonzero(~np.isfinite(x_hat))[0])  # the controller output, in turn
+    assert np.all(np.isfinite(x_hat[:m])) and np.isnan(x_hat[m + 1 :]).all()
+    assert m <= gone[0] // p + 1
     assert fit == float("-inf")
     assert va.format_fit(fit).endswith("(diverges)")
     # a stable loop (negative feedback, small gain) is untouched by the check
     y_ok, _ = loop.simulate_loop(model, dataclasses.replace(ctl, b0=0.01), r, 0.0)
     assert np.all(np.isfinite(y_ok))
+
+
+def test_a_nominal_that_diverges_in_the_loop_measures_no_gain(monkeypatch, tmp_path) -> None:
+    """Chosen on the closed-loop fit, with a controller that makes the nominal's loop unstable:
+    the nominal's fit is ``-inf``, against which every extension would gain ``+inf``. No
+    extension is ranked; the cause is ``unexplained``, and the findings and the report say the
+    fit diverges."""
+    spec = copy.deepcopy(scenarios.PAPER_SECTION6)
+    spec["noise"]["sigma2"] = 1e-3
+    rec, _ = simulate(scenarios.build(spec), 1, np.random.default_rng(7))
+    unstable = loop.LoopController("P", -1e200, 0.0, 0.0, 0.0)
+    monkeypatch.setattr(va, "identify_controller", lambda *a, **k: unstable)
+    d = va.diagnose(rec, criterion="closed-loop")
+    assert d.baseline_fit == float("-inf")
+    assert d.cause == "unexplained"
+    assert "(diverges)" in d.why and "inf" not in d.why.replace("(diverges)", "")
+    assert "(diverges)" in d.findings()[2]
+    from hbench.diagnose.report import write_report
+
+    md = write_report(d, tmp_path)[1].read_text()
+    assert "(diverges)" in md
+    assert "inf %" not in md and "nan %" not in md and "+inf" not in md

@@ -33,13 +33,16 @@ integrate on a slow plant (poles near 1) as the open-loop simulation's does; wha
 the error of the model inside the loop's bandwidth. Noise-free, with the record's own model,
 it reproduces ``y``.
 
-A model and controller whose loop is unstable diverge: once the re-simulated output leaves the
-floating-point range, the rest of ``y_hat`` is ``inf`` and of ``x_hat`` ``nan`` (the fit is
-then ``-inf``, which the findings print as diverging), without numpy's overflow warnings.
+A model and controller whose loop is unstable diverge: from the first fast sample where the
+re-simulated output is no longer finite (it overflowed), the rest of ``y_hat`` is an infinity
+(the overflow's sign) and the later ``x_hat`` are ``nan``; the fit is then ``-inf``, which the
+findings print as diverging. Numpy's overflow warnings are not raised on the way. (A model or
+controller with a parameter that is not finite is simulated as it is, without this check.)
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -130,6 +133,22 @@ def identify_controller(x: np.ndarray, e: np.ndarray, structure: str = "auto") -
     return min(fits.values(), key=lambda f: f[0])[1]
 
 
+def _diverged(y_hat: np.ndarray, x_hat: np.ndarray, n: int, p: int) -> None:
+    """Mark the loop diverged in period ``n`` (module notes): ``y_hat`` from its first sample
+    that is not finite on (an infinity keeps its sign; a ``nan``, an overflow's ``inf - inf``
+    or ``0 inf``, becomes the sign of the last finite sample's infinity), ``x_hat`` ``nan``
+    after period ``n``."""
+    t0 = n * p
+    bad = np.flatnonzero(~np.isfinite(y_hat[t0 : t0 + p]))
+    first = t0 + (int(bad[0]) if bad.size else p)
+    v = y_hat[first] if first < y_hat.size else np.inf
+    if not np.isinf(v):
+        last = y_hat[first - 1] if first > 0 else 1.0
+        v = math.copysign(math.inf, last)
+    y_hat[first:] = v
+    x_hat[n + 1 :] = np.nan
+
+
 def simulate_loop(
     model: core.Model, ctl: LoopController, r: np.ndarray, x0: float
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -149,9 +168,11 @@ def simulate_loop(
     Returns
     -------
     y_hat : numpy.ndarray
-        ``(K p,)``: the re-simulated output at the fast rate.
+        ``(K p,)``: the re-simulated output at the fast rate (``+-inf`` from where it
+        overflows: module notes).
     x_hat : numpy.ndarray
-        ``(K,)``: the re-simulated controller output.
+        ``(K,)``: the re-simulated controller output (``nan`` after the period where the
+        output overflows).
     """
     r = np.asarray(r, float)
     K, p = r.size, int(model.p)
@@ -166,6 +187,11 @@ def simulate_loop(
     y_hat, x_hat, u = np.empty(N), np.empty(K), np.empty(K)
     valve = core.nl_stepper(model.cls, model.theta, float(x0))
     e_prev = 0.0
+    # a model whose numbers are all finite can give a non-finite output only by overflowing
+    sound = all(
+        np.all(np.isfinite(v))
+        for v in (num, a, model.gain, extra, r, x0, list(model.theta.values()))
+    ) and all(math.isfinite(v) for v in (ctl.b0, ctl.b1, ctl.c))
     with np.errstate(over="ignore", invalid="ignore"):  # a diverging loop: checked below
         for n in range(K):
             t0 = n * p
@@ -180,7 +206,7 @@ def simulate_loop(
             un = u[n - model.shift] if n >= model.shift else u[0]
             z, zi = signal.lfilter(num, a, np.full(p, un - u[0]), zi=zi)
             y_hat[t0 : t0 + p] = model.gain * z + extra[t0 : t0 + p]
-            if not (np.all(np.isfinite(y_hat[t0 : t0 + p])) and np.isfinite(x_hat[n])):
-                y_hat[t0:], x_hat[n:] = np.inf, np.nan  # diverged (module notes)
+            if sound and not (math.isfinite(y_hat[t0 + p - 1]) and math.isfinite(x_hat[n])):
+                _diverged(y_hat, x_hat, n, p)
                 break
     return y_hat, x_hat

@@ -13,7 +13,7 @@ import numpy as np
 
 from hbench.diagnose import core, stats
 from hbench.diagnose.effects import format_p
-from hbench.diagnose.validate import half_gains, unread_halves
+from hbench.diagnose.validate import format_fit, half_gains, unread_halves
 from hbench.system import atomic
 
 FIGURES: tuple[tuple[str, str], ...] = (
@@ -117,13 +117,12 @@ def render_figures(d: Any) -> dict[str, dict[str, bytes]]:
         crit = d.info.get("criterion") or validate.parse_criterion(d.criterion)
         pred = validate.criterion_output(ctx, nom.model, nom.model, crit, nom.yhat)
         v = ctx.val_idx
-        ax.plot(
-            t[v],
-            pred[v],
-            color="C2",
-            lw=0.7,
-            label=f"nominal, {d.criterion} ({d.fits['nominal'][d.criterion]:.1f} %)",
-        )
+        fit = d.fits["nominal"][d.criterion]
+        label = f"nominal, {d.criterion} ({validate.format_fit(fit)})"
+        if fit >= validate.FIT_FLOOR:
+            ax.plot(t[v], pred[v], color="C2", lw=0.7, label=label)
+        else:  # a diverging output would set the axis and flatten the measured y
+            ax.plot([], [], color="C2", lw=0.7, label=label + ", not drawn")
     ax.axvline(t_split, color="k", ls="--", lw=0.8)
     ax.set_xlabel("t [s]")
     ax.set_ylabel("y")
@@ -249,8 +248,11 @@ def _rows(d: Any) -> list[dict[str, str]]:
                     ""
                     if ext is None
                     else (
-                        _value(ext.val_fit, ".1f", "the extended model does not simulate")
-                        + " %"
+                        (
+                            "n/a: the extended model does not simulate"
+                            if np.isnan(ext.val_fit)
+                            else format_fit(ext.val_fit)
+                        )
                         + "".join(f" ({n})" for n in _notes(ext.model))
                         if ext.model is not None
                         else f"failed: {ext.error}"
@@ -272,12 +274,15 @@ def _half_gains(d: Any, ext: Any) -> str:
     (:func:`hbench.diagnose.validate.unread_halves`)."""
     if ext is None or ext.model is None:
         return ""
-    whole = f"{ext.val_fit - d.baseline_fit:+.1f} whole"
+    gain = ext.val_fit - d.baseline_fit
+    if not np.isfinite(gain):
+        return "n/a: a fit is not finite (a diverging output)"
+    whole = f"{gain:+.1f} whole"
     g = half_gains(ext, d.baseline_halves)
     if g is None:
         return f"{whole}; halves n/a: not measured"
     if not all(np.isfinite(g)):
-        return f"{whole}; halves n/a: a half's fit is not finite (a constant half)"
+        return f"{whole}; halves n/a: a half's fit is not finite (a constant half, a divergence)"
     text = f"{whole}; {g[0]:+.1f} / {g[1]:+.1f}"
     why = unread_halves(ext, d.rule)
     return f"{text} (halves not read: {why})" if why else text

@@ -213,13 +213,13 @@ class Diagnosis:
             )
             if self.cause == "none":
                 return (
-                    f"{missed}; the nominal model ({self.baseline_fit:.1f} %) explains the "
+                    f"{missed}; the nominal model ({format_fit(self.baseline_fit)}) explains the "
                     f"validation part better than its mean{fired_note}{aside_note}"
                 )
             if self.cause == "unexplained":
                 return (
-                    f"{missed}, and the nominal model's fit ({self.baseline_fit:.1f} %) is no "
-                    f"better than the validation part's mean{fired_note}{aside_note}"
+                    f"{missed}, and the nominal model's fit ({format_fit(self.baseline_fit)}) "
+                    f"is no better than the validation part's mean{fired_note}{aside_note}"
                 )
             det = next((d for d in self.detections if d.name == self.cause), None)
             said = "" if det is None else f" (its detector: {'fired' if det.fired else 'quiet'})"
@@ -230,12 +230,12 @@ class Diagnosis:
         if self.cause == "none":
             return (
                 f"no detector fired, and the nominal model explains the validation part "
-                f"({crit} fit {self.baseline_fit:.1f} %)"
+                f"({crit} fit {format_fit(self.baseline_fit)})"
             )
         if self.cause == "unexplained" and not fired:
             return (
                 f"no detector fired, but the nominal model's {crit} fit "
-                f"({self.baseline_fit:.1f} %) is no better than the validation part's mean"
+                f"({format_fit(self.baseline_fit)}) is no better than the validation part's mean"
             )
         if self.cause == "unexplained":
             return f"{', '.join(fired)} fired, but no extension gained {g:g} points of {crit} fit"
@@ -596,8 +596,9 @@ def clears(e: Extension, base: float, base_halves: tuple[float, float] | None, b
     """Whether the extension ``e`` gains at least ``bar`` points over the nominal's validation
     fit ``base``; with :data:`HALVES`, for an extension whose detector stayed quiet, over the
     nominal's fit on each half of the validation part (``base_halves``) too. Halves not
-    measured, or a nominal half fit that is not finite (a constant half), leave the whole to
-    decide. An extension without a model, or with a fit that is not a number, gains nothing."""
+    measured, or a nominal half fit that is not finite (a constant half, a diverging output),
+    leave the whole to decide. An extension without a model, or with a fit that is not a
+    number, gains nothing."""
     if e.model is None or not np.isfinite(e.val_fit) or e.val_fit - base < bar:
         return False
     g = half_gains(e, base_halves)
@@ -783,7 +784,7 @@ def _diagnose(
 
     base_fits, base_halves = fits_of(nominal.model)
     base = base_fits[crit.name]
-    say(f"nominal model: {nominal.chosen} valve, {crit.name} fit {base:.1f} %")
+    say(f"nominal model: {nominal.chosen} valve, {crit.name} fit {format_fit(base)}")
     detections: list[Detection] = []
     extensions: dict[str, Extension] = {}
     for eff in instances:
@@ -820,7 +821,8 @@ def _diagnose(
             and e.name not in DETECTED_ONLY
             and clears(e, base, halves, MIN_GAIN_UNDETECTED)
         ]
-    best = choose_extension(pool, extensions, base, min_gain, halves)
+    # a nominal fit that is not finite (a re-simulated loop that diverges) measures no gain
+    best = choose_extension(pool, extensions, base, min_gain, halves) if np.isfinite(base) else None
     cause, extended, ext_fit, ext_fits = "none", nominal.model, base, base_fits
     if best is not None:
         cause, extended, ext_fit, ext_fits = best.name, best.model, best.val_fit, best.fits
