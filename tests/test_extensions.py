@@ -195,3 +195,37 @@ def test_delay_estimate_realigns_the_inner_signal():
     est = run_method("wang-delay", record, options=IdentifyOptions())
     np.testing.assert_array_equal(est.delay_multiple, 2)
     assert np.all(fitness(est.U, truth.U, gain=truth.plant.gain) > 99.99)
+
+
+def test_a_diverging_noise_compensation_fails_the_run_without_warnings():
+    """A paper-loop record (benchmark seed 15013, p = 8, an extra lag) fitted with three
+    poles: ``wang-lsm-cn``'s fixed-point iteration leaves the floating-point range. The run
+    fails (infinite parameters, no ``U``: ``run_status``), ``info["diverged_runs"]`` counts it,
+    ``joint-refine`` started from it does not refine it, and no numpy warning is raised
+    (any warning fails the test). The same fit with four poles converges."""
+    import warnings
+
+    from hbench.diagnose import benchmark_cases as bc
+    from hbench.diagnose import nominal as nm
+    from hbench.ident.identifiers import IdentifyOptions, identify, run_status
+    from hbench.plugins import registry
+
+    case = bc.bench_grid(15000, 1, ("paper",))[13]
+    assert case.seed == 15013
+    ctx = nm.make_context(bc.simulate_bench_case(case))
+    part = ctx.part(0, ctx.k_fit)
+
+    def fit(method: str, na: int):
+        opts = IdentifyOptions(nb_max=min(3, ctx.p - 1), na_range=(1, na), na=na)
+        return identify(registry().get("identifiers", method)(), part, opts)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for method in ("wang-lsm-cn", "joint-refine"):
+            est = fit(method, 3)
+            assert run_status(est)[0][0] == "failed", method
+            assert np.isinf(est.a[0, :3]).all() and np.isnan(est.U[0]).all()
+            assert est.info["diverged_runs"] == 1
+        ok = fit("wang-lsm-cn", 4)
+    assert run_status(ok)[0][0] == "ok" and ok.info["diverged_runs"] == 0
+    assert np.isfinite(ok.a[0, :4]).all()

@@ -109,7 +109,10 @@ class ColoredNoiseLSM(Identifier):
     lags : int or None
         Noise MA lags J to estimate (default: all that the quiet block spans, p - nb - 1).
     iterations : int
-        Fixed-point iterations (stops earlier at relative change < 1e-10).
+        Fixed-point iterations (stops earlier at relative change < 1e-10). A run whose iterates
+        leave the floating-point range has diverged: its parameters are ``inf`` and ``U``
+        ``nan`` (the run fails: ``hbench.ident.invoke.run_status``), and ``info["diverged_runs"]``
+        counts such runs, without numpy's overflow warnings.
     """
 
     name: ClassVar[str] = "wang-lsm-cn"
@@ -129,6 +132,7 @@ class ColoredNoiseLSM(Identifier):
     ) -> Estimate:
         p = record.p
         gammas: dict[int, np.ndarray] = {}
+        diverged: set[int] = set()
 
         def refined(reg: pp.QuietRegression, idx: np.ndarray, tau: int, nb: int):
             theta, _ = pp.bias_compensated(reg)
@@ -138,25 +142,36 @@ class ColoredNoiseLSM(Identifier):
             J = len(phases) - 1 if self.lags is None else min(self.lags, len(phases) - 1)
             gamma = np.zeros((idx.size, J + 1))
             done = np.zeros(idx.size, bool)  # each run stops at its own fixed point, so its
-            for _ in range(self.iterations):  # estimate does not depend on its batch
-                g = quiet_autocovariance(reg.dy, theta, p, phases, tau, J)
-                new = np.einsum("rik,rk->ri", Rinv, f - noise_bias(theta, g))
-                change = np.max(np.abs(new - theta), axis=1) / np.maximum(
-                    np.max(np.abs(theta), axis=1), 1e-300
-                )
-                gamma = np.where(done[:, None], gamma, g)
-                theta = np.where(done[:, None], theta, new)
-                done |= change < 1e-10
-                if done.all():
-                    break
+            # estimate does not depend on its batch; a run whose iterates leave the
+            # floating-point range has diverged (checked below)
+            with np.errstate(over="ignore", invalid="ignore"):
+                for _ in range(self.iterations):
+                    g = quiet_autocovariance(reg.dy, theta, p, phases, tau, J)
+                    new = np.einsum("rik,rk->ri", Rinv, f - noise_bias(theta, g))
+                    change = np.max(np.abs(new - theta), axis=1) / np.maximum(
+                        np.max(np.abs(theta), axis=1), 1e-300
+                    )
+                    lost = ~done & ~np.all(np.isfinite(new), axis=1)
+                    gamma = np.where(done[:, None], gamma, g)
+                    theta = np.where(done[:, None], theta, new)
+                    done |= lost | (change < 1e-10)
+                    theta[lost] = np.nan
+                    diverged.update(int(i) for i in idx[lost])
+                    if done.all():
+                        break
             for j, i in enumerate(idx):
                 gammas[int(i)] = gamma[j]
             return theta, gamma[:, 0] / 2.0
 
         def numerator(dw, tau, nb, sigma2, idx):
-            return b_compensated(dw, np.stack([gammas[int(i)] for i in idx]), p, tau, nb)
+            b = np.full((idx.size, nb), np.nan)  # a diverged run has none
+            keep = np.array([int(i) not in diverged for i in idx], bool)
+            if keep.any():
+                gam = np.stack([gammas[int(i)] for i in idx[keep]])
+                b[keep] = b_compensated(dw[keep], gam, p, tau, nb)
+            return b
 
-        return blind_fit(
+        est = blind_fit(
             self.name,
             record,
             options,
@@ -167,3 +182,10 @@ class ColoredNoiseLSM(Identifier):
             info=self.options(),
             refine=refined,
         )
+        # a diverged run's parameters overflowed: infinite, which marks the run failed
+        # (hbench.ident.invoke.run_status); the count is in the estimate's info
+        for i in sorted(diverged):
+            est.a[i, : est.na[i]], est.b[i, : est.nb[i]], est.U[i] = np.inf, np.inf, np.nan
+            est.reason[i] = ""
+        est.info["diverged_runs"] = len(diverged)
+        return est

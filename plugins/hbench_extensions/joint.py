@@ -128,7 +128,7 @@ class JointRefinement(Identifier):
     ) -> Estimate:
         from hbench_wang import WangLSM
 
-        from hbench.ident.identifiers import groups
+        from hbench.ident.identifiers import groups, run_status
 
         first = (ColoredNoiseLSM() if self.start == "wang-lsm-cn" else WangLSM()).identify(
             record, options
@@ -137,7 +137,7 @@ class JointRefinement(Identifier):
         p, K = record.p, record.n_slow
         U = est.U.copy()
         a, b = est.a.copy(), est.b.copy()
-        ok = est.identifiable
+        ok = run_status(est)[0] == "ok"  # a run its start failed on (diverged) is not refined
         for (na, tau, nb), idx in groups(est.na, est.tau, est.nb):
             idx = idx[ok[idx]]
             if idx.size == 0:
