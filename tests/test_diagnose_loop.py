@@ -110,18 +110,28 @@ def test_the_cli_chooses_on_the_closed_loop_fit(run_cli, tmp_path) -> None:
     assert "closed-loop" in stdout and "controller P, kp 0.1" in stdout
 
 
-@pytest.mark.parametrize("b0", [-50.0, -1e200])
-def test_a_diverging_loop_gives_an_infinite_error_without_warnings(b0: float) -> None:
+@pytest.mark.parametrize(
+    ("b0", "cls", "theta"),
+    [
+        (-50.0, "linear", {}),
+        (-1e200, "linear", {}),
+        (-50.0, "saturation", {"u_min": -np.inf, "u_max": 1e6}),  # a one-sided saturation
+    ],
+)
+def test_a_diverging_loop_gives_an_infinite_error_without_warnings(
+    b0: float, cls: str, theta: dict
+) -> None:
     """Positive feedback through an integrating model: the re-simulated output leaves the
     floating-point range (inside the filter at kp 50; in the controller's product at 1e200).
-    From the first infinite sample on ``y_hat`` is that infinity, ``x_hat`` ``nan`` after its
-    period, the fit ``-inf``, printed as diverging; numpy's overflow warnings do not reach the
-    user (any warning fails this test)."""
+    From its first sample that is not finite on, ``y_hat`` is one infinity of the sign the
+    output ran off to, ``x_hat`` ``nan`` after its period, the fit ``-inf``, printed as
+    diverging; numpy's overflow warnings do not reach the user (any warning fails this test).
+    A valve with an infinite limit is a model like any other."""
     import warnings
 
     p, K = 5, 400
     lin = core.Linear(a=np.array([1.0, -1.0]), b=np.array([0.0, 1.0]), delay=0)
-    model = core.Model(cls="linear", theta={}, lin=lin, p=p)
+    model = core.Model(cls=cls, theta=theta, lin=lin, p=p)
     ctl = loop.LoopController("P", b0, 0.0, 0.0, 0.0)
     r = np.ones(K)
     with warnings.catch_warnings():
@@ -130,8 +140,11 @@ def test_a_diverging_loop_gives_an_infinite_error_without_warnings(b0: float) ->
         fit = core.fit_percent(np.sin(np.arange(K * p) / 7.0), y_hat)
     gone = np.flatnonzero(~np.isfinite(y_hat))
     assert gone.size and np.all(np.isinf(y_hat[gone[0] :]))
-    assert np.all(y_hat[gone[0] :] == y_hat[gone[0]])  # one infinity, the overflow's sign
+    assert np.all(y_hat[gone[0] :] == y_hat[gone[0]])  # one infinity
+    assert np.sign(y_hat[gone[0]]) == np.sign(y_hat[gone[0] - 1])  # where it ran off to
     assert np.all(np.isfinite(y_hat[: gone[0]]))
+    if b0 == -50.0:  # the filter overflows inside a period: marked from that sample
+        assert gone[0] % p != 0
     m = int(np.flatnonzero(~np.isfinite(x_hat))[0])  # the controller output, in turn
     assert np.all(np.isfinite(x_hat[:m])) and np.isnan(x_hat[m + 1 :]).all()
     assert m <= gone[0] // p + 1
@@ -142,20 +155,40 @@ def test_a_diverging_loop_gives_an_infinite_error_without_warnings(b0: float) ->
     assert np.all(np.isfinite(y_ok))
 
 
+def test_a_model_with_a_nan_parameter_is_not_taken_for_a_diverging_loop() -> None:
+    """A ``nan`` gain makes the output ``nan`` from the start: not an overflow, so the output
+    is left as it comes (not marked as diverging to an infinity)."""
+    p, K = 5, 50
+    lin = core.Linear(a=np.array([1.0, -0.9]), b=np.array([0.0, 1.0]), delay=0)
+    model = core.Model(cls="linear", theta={}, lin=lin, p=p, gain=float("nan"))
+    y_hat, _ = loop.simulate_loop(
+        model, loop.LoopController("P", 0.1, 0.0, 0.0, 0.0), np.ones(K), 0.0
+    )
+    assert np.isnan(y_hat).all()
+
+
 def test_a_nominal_that_diverges_in_the_loop_measures_no_gain(monkeypatch, tmp_path) -> None:
-    """Chosen on the closed-loop fit, with a controller that makes the nominal's loop unstable:
-    the nominal's fit is ``-inf``, against which every extension would gain ``+inf``. No
-    extension is ranked; the cause is ``unexplained``, and the findings and the report say the
-    fit diverges."""
+    """Chosen on the closed-loop fit, where the nominal's loop diverges and the extensions'
+    do not (the nominal's closed-loop output replaced by an overflow): every extension would
+    gain ``+inf``. No extension is ranked; the cause is ``unexplained``, and the findings and
+    the report say the nominal's fit diverges."""
     spec = copy.deepcopy(scenarios.PAPER_SECTION6)
     spec["noise"]["sigma2"] = 1e-3
     rec, _ = simulate(scenarios.build(spec), 1, np.random.default_rng(7))
-    unstable = loop.LoopController("P", -1e200, 0.0, 0.0, 0.0)
-    monkeypatch.setattr(va, "identify_controller", lambda *a, **k: unstable)
-    d = va.diagnose(rec, criterion="closed-loop")
+    real = va.criterion_output
+
+    def nominal_diverges(ctx, model, nominal, crit, ysim=None):
+        out = real(ctx, model, nominal, crit, ysim)
+        if crit.loop is not None and model is nominal:
+            return np.full_like(out, np.inf)
+        return out
+
+    monkeypatch.setattr(va, "criterion_output", nominal_diverges)
+    d = va.diagnose(rec, criterion="closed-loop", extend_all=True)
     assert d.baseline_fit == float("-inf")
+    assert any(np.isfinite(e.val_fit) for e in d.extensions.values())  # they would gain +inf
     assert d.cause == "unexplained"
-    assert "(diverges)" in d.why and "inf" not in d.why.replace("(diverges)", "")
+    assert "(diverges)" in d.why and "no extension's gain can be measured" in d.why
     assert "(diverges)" in d.findings()[2]
     from hbench.diagnose.report import write_report
 

@@ -202,7 +202,9 @@ def test_a_diverging_noise_compensation_fails_the_run_without_warnings():
     poles: ``wang-lsm-cn``'s fixed-point iteration leaves the floating-point range. The run
     fails (infinite parameters, no ``U``: ``run_status``), ``info["diverged_runs"]`` counts it,
     ``joint-refine`` started from it does not refine it, and no numpy warning is raised
-    (any warning fails the test). The same fit with four poles converges."""
+    (any warning fails the test). The same fit with four poles does not overflow within the
+    iterations (it is still moving when they run out, which ``info["unconverged_runs"]``
+    counts)."""
     import warnings
 
     from hbench.diagnose import benchmark_cases as bc
@@ -226,6 +228,9 @@ def test_a_diverging_noise_compensation_fails_the_run_without_warnings():
             assert run_status(est)[0][0] == "failed", method
             assert np.isinf(est.a[0, :3]).all() and np.isnan(est.U[0]).all()
             assert est.info["diverged_runs"] == 1
+            assert "non-finite" in run_status(est)[1][0]
+        assert np.isnan(fit("wang-lsm-cn", 3).sigma2[0])
         ok = fit("wang-lsm-cn", 4)
     assert run_status(ok)[0][0] == "ok" and ok.info["diverged_runs"] == 0
+    assert ok.info["unconverged_runs"] == 1
     assert np.isfinite(ok.a[0, :4]).all()

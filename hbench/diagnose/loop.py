@@ -35,9 +35,11 @@ it reproduces ``y``.
 
 A model and controller whose loop is unstable diverge: from the first fast sample where the
 re-simulated output is no longer finite (it overflowed), the rest of ``y_hat`` is an infinity
-(the overflow's sign) and the later ``x_hat`` are ``nan``; the fit is then ``-inf``, which the
-findings print as diverging. Numpy's overflow warnings are not raised on the way. (A model or
-controller with a parameter that is not finite is simulated as it is, without this check.)
+(of the overflow's sign where it has one: ``_diverged``) and the later ``x_hat`` are ``nan``;
+the fit is then ``-inf``, which the findings print as diverging. Numpy's overflow warnings are
+not raised on the way. (A valve's limit may be infinite: a one-sided saturation. A model or
+controller with a parameter that is not a number, or with dynamics or a controller that are
+not finite, is simulated as it is, without this check.)
 """
 
 from __future__ import annotations
@@ -135,16 +137,18 @@ def identify_controller(x: np.ndarray, e: np.ndarray, structure: str = "auto") -
 
 def _diverged(y_hat: np.ndarray, x_hat: np.ndarray, n: int, p: int) -> None:
     """Mark the loop diverged in period ``n`` (module notes): ``y_hat`` from its first sample
-    that is not finite on (an infinity keeps its sign; a ``nan``, an overflow's ``inf - inf``
-    or ``0 inf``, becomes the sign of the last finite sample's infinity), ``x_hat`` ``nan``
-    after period ``n``."""
+    in the period that is not finite on (from the next period where the period's output is
+    finite and only ``x_hat(n)`` overflowed), ``x_hat`` ``nan`` after period ``n``. The fill
+    is the first non-finite sample where it is an infinity, else an infinity of the sign of
+    the last finite sample (a ``nan`` of an overflow's ``inf - inf`` or ``0 inf`` has no
+    sign)."""
     t0 = n * p
     bad = np.flatnonzero(~np.isfinite(y_hat[t0 : t0 + p]))
     first = t0 + (int(bad[0]) if bad.size else p)
-    v = y_hat[first] if first < y_hat.size else np.inf
-    if not np.isinf(v):
-        last = y_hat[first - 1] if first > 0 else 1.0
-        v = math.copysign(math.inf, last)
+    if bad.size and np.isinf(y_hat[first]):
+        v = float(y_hat[first])
+    else:
+        v = math.copysign(math.inf, y_hat[first - 1] if first > 0 else 1.0)
     y_hat[first:] = v
     x_hat[n + 1 :] = np.nan
 
@@ -187,11 +191,13 @@ def simulate_loop(
     y_hat, x_hat, u = np.empty(N), np.empty(K), np.empty(K)
     valve = core.nl_stepper(model.cls, model.theta, float(x0))
     e_prev = 0.0
-    # a model whose numbers are all finite can give a non-finite output only by overflowing
-    sound = all(
-        np.all(np.isfinite(v))
-        for v in (num, a, model.gain, extra, r, x0, list(model.theta.values()))
-    ) and all(math.isfinite(v) for v in (ctl.b0, ctl.b1, ctl.c))
+    # a model without a nan among its numbers can give a non-finite output only by
+    # overflowing (a valve's parameter may be infinite: a one-sided saturation)
+    sound = (
+        all(np.all(np.isfinite(v)) for v in (num, a, model.gain, extra, r, x0))
+        and all(math.isfinite(v) for v in (ctl.b0, ctl.b1, ctl.c))
+        and not any(math.isnan(float(v)) for v in model.theta.values())
+    )
     with np.errstate(over="ignore", invalid="ignore"):  # a diverging loop: checked below
         for n in range(K):
             t0 = n * p

@@ -276,7 +276,7 @@ def _half_gains(d: Any, ext: Any) -> str:
         return ""
     gain = ext.val_fit - d.baseline_fit
     if not np.isfinite(gain):
-        return "n/a: a fit is not finite (a diverging output)"
+        return "n/a: a fit is not finite (a diverging output, or a model that does not simulate)"
     whole = f"{gain:+.1f} whole"
     g = half_gains(ext, d.baseline_halves)
     if g is None:

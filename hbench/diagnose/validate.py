@@ -194,6 +194,11 @@ class Diagnosis:
         fired = [d.name for d in self.detections if d.fired]
         g, crit = MIN_GAIN[self.rule], self.criterion
         fired_note = f"; fired: {', '.join(fired)}" if fired else "; no detector fired"
+        if not np.isfinite(self.baseline_fit):
+            return (
+                f"the nominal model's {crit} fit is {format_fit(self.baseline_fit)}: no "
+                f"extension's gain can be measured against it{fired_note}"
+            )
         if self.rule == "validation":
             where = " on the whole validation part and on each of its halves" if HALVES else ""
             missed = (

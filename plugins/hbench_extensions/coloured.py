@@ -110,9 +110,11 @@ class ColoredNoiseLSM(Identifier):
         Noise MA lags J to estimate (default: all that the quiet block spans, p - nb - 1).
     iterations : int
         Fixed-point iterations (stops earlier at relative change < 1e-10). A run whose iterates
-        leave the floating-point range has diverged: its parameters are ``inf`` and ``U``
-        ``nan`` (the run fails: ``hbench.ident.invoke.run_status``), and ``info["diverged_runs"]``
-        counts such runs, without numpy's overflow warnings.
+        leave the floating-point range within them has diverged: its parameters are ``inf``
+        and ``U`` ``nan`` (the run fails: ``hbench.ident.invoke.run_status``), without numpy's
+        overflow warnings; ``info["diverged_runs"]`` counts such runs. A run still moving when
+        the iterations run out keeps its last iterate; ``info["unconverged_runs"]`` counts
+        those (the diverged ones are not among them).
     """
 
     name: ClassVar[str] = "wang-lsm-cn"
@@ -133,6 +135,7 @@ class ColoredNoiseLSM(Identifier):
         p = record.p
         gammas: dict[int, np.ndarray] = {}
         diverged: set[int] = set()
+        unconverged = [0]  # runs still moving when the iterations run out
 
         def refined(reg: pp.QuietRegression, idx: np.ndarray, tau: int, nb: int):
             theta, _ = pp.bias_compensated(reg)
@@ -159,12 +162,16 @@ class ColoredNoiseLSM(Identifier):
                     diverged.update(int(i) for i in idx[lost])
                     if done.all():
                         break
+            unconverged[0] += int(np.sum(~done))
             for j, i in enumerate(idx):
                 gammas[int(i)] = gamma[j]
-            return theta, gamma[:, 0] / 2.0
+            s2 = gamma[:, 0] / 2.0
+            s2[[int(i) in diverged for i in idx]] = np.nan
+            return theta, s2
 
         def numerator(dw, tau, nb, sigma2, idx):
-            b = np.full((idx.size, nb), np.nan)  # a diverged run has none
+            b = np.full((idx.size, nb), np.nan)  # a diverged run has none (b1 = 1 always)
+            b[:, 0] = 1.0
             keep = np.array([int(i) not in diverged for i in idx], bool)
             if keep.any():
                 gam = np.stack([gammas[int(i)] for i in idx[keep]])
@@ -183,9 +190,10 @@ class ColoredNoiseLSM(Identifier):
             refine=refined,
         )
         # a diverged run's parameters overflowed: infinite, which marks the run failed
-        # (hbench.ident.invoke.run_status); the count is in the estimate's info
+        # (hbench.ident.invoke.run_status); the counts are in the estimate's info
         for i in sorted(diverged):
             est.a[i, : est.na[i]], est.b[i, : est.nb[i]], est.U[i] = np.inf, np.inf, np.nan
-            est.reason[i] = ""
+            est.sigma2[i] = np.nan
         est.info["diverged_runs"] = len(diverged)
+        est.info["unconverged_runs"] = unconverged[0]
         return est
