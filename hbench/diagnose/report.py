@@ -118,7 +118,7 @@ def render_figures(d: Any) -> dict[str, dict[str, bytes]]:
         pred = validate.criterion_output(ctx, nom.model, nom.model, crit, nom.yhat)
         v = ctx.val_idx
         fit = d.fits["nominal"][d.criterion]
-        label = f"nominal, {d.criterion} ({validate.format_fit(fit)})"
+        label = f"nominal, {d.criterion} ({format_fit(fit)})"
         if fit >= validate.FIT_FLOOR:
             ax.plot(t[v], pred[v], color="C2", lw=0.7, label=label)
         else:  # a diverging output would set the axis and flatten the measured y

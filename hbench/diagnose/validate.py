@@ -603,8 +603,11 @@ def clears(e: Extension, base: float, base_halves: tuple[float, float] | None, b
     nominal's fit on each half of the validation part (``base_halves``) too. Halves not
     measured, or a nominal half fit that is not finite (a constant half, a diverging output),
     leave the whole to decide. An extension without a model, or with a fit that is not a
-    number, gains nothing."""
-    if e.model is None or not np.isfinite(e.val_fit) or e.val_fit - base < bar:
+    number, gains nothing, and nothing gains against a nominal fit that is not finite (a
+    re-simulated loop that diverges: every finite fit would gain ``+inf``)."""
+    if e.model is None or not np.isfinite(e.val_fit) or not np.isfinite(base):
+        return False
+    if e.val_fit - base < bar:
         return False
     g = half_gains(e, base_halves)
     if g is None or unread_halves(e) or not np.all(np.isfinite(base_halves)):
@@ -826,8 +829,7 @@ def _diagnose(
             and e.name not in DETECTED_ONLY
             and clears(e, base, halves, MIN_GAIN_UNDETECTED)
         ]
-    # a nominal fit that is not finite (a re-simulated loop that diverges) measures no gain
-    best = choose_extension(pool, extensions, base, min_gain, halves) if np.isfinite(base) else None
+    best = choose_extension(pool, extensions, base, min_gain, halves)
     cause, extended, ext_fit, ext_fits = "none", nominal.model, base, base_fits
     if best is not None:
         cause, extended, ext_fit, ext_fits = best.name, best.model, best.val_fit, best.fits

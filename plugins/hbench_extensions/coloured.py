@@ -135,9 +135,10 @@ class ColoredNoiseLSM(Identifier):
         p = record.p
         gammas: dict[int, np.ndarray] = {}
         diverged: set[int] = set()
-        unconverged = [0]  # runs still moving when the iterations run out
+        unconverged = 0  # runs still moving when the iterations run out
 
         def refined(reg: pp.QuietRegression, idx: np.ndarray, tau: int, nb: int):
+            nonlocal unconverged
             theta, _ = pp.bias_compensated(reg)
             Rm, f = reg.moments()
             Rinv = np.linalg.pinv(Rm, rcond=1e-12, hermitian=True)
@@ -162,7 +163,7 @@ class ColoredNoiseLSM(Identifier):
                     diverged.update(int(i) for i in idx[lost])
                     if done.all():
                         break
-            unconverged[0] += int(np.sum(~done))
+            unconverged += int(np.sum(~done))
             for j, i in enumerate(idx):
                 gammas[int(i)] = gamma[j]
             s2 = gamma[:, 0] / 2.0
@@ -195,5 +196,5 @@ class ColoredNoiseLSM(Identifier):
             est.a[i, : est.na[i]], est.b[i, : est.nb[i]], est.U[i] = np.inf, np.inf, np.nan
             est.sigma2[i] = np.nan
         est.info["diverged_runs"] = len(diverged)
-        est.info["unconverged_runs"] = unconverged[0]
+        est.info["unconverged_runs"] = unconverged
         return est
