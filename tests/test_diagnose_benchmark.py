@@ -27,8 +27,6 @@ import pytest
 from hbench.diagnose import benchmark_cases as bc
 from hbench.diagnose import calibrate
 
-RunCli = Callable[[list[str]], tuple[int, str, str]]
-
 PAPER_START, OTHERS_START = 20_000, 21_000
 
 
@@ -108,19 +106,35 @@ def test_target(held_out_rows: dict[str, list[dict[str, Any]]], group: str, whic
     assert _target(held_out_rows[group], which) >= _TARGETS[which][2]
 
 
+def _simulate_and_diagnose(seed: int) -> tuple[int, int, str, str | None]:
+    """``hbench simulate --seed seed`` then ``hbench diagnose`` on its record, through the
+    command line: (simulate's status, diagnose's status, their stderr, the JSON's cause)."""
+    import contextlib
+    import io
+    import tempfile
+
+    from hbench import cli
+
+    with tempfile.TemporaryDirectory() as tmp:
+        rec, out = Path(tmp) / f"s{seed}.csv", Path(tmp) / f"s{seed}.json"
+        err = io.StringIO()
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
+            simulated = cli.main(["simulate", "--out", str(rec), "--seed", str(seed)])
+            diagnosed = -1
+            if simulated == 0:
+                diagnosed = cli.main(["diagnose", str(rec), "--json", str(out)])
+        cause = json.loads(out.read_text())["cause"] if diagnosed == 0 else None
+        return simulated, diagnosed, err.getvalue(), cause
+
+
 @pytest.mark.slow
-def test_paper_example_without_effect_is_none(run_cli: RunCli, tmp_path: Path) -> None:
+def test_paper_example_without_effect_is_none() -> None:
     """``hbench simulate`` defaults (the paper's example, backlash d = 0.1, sigma^2 = 1e-3),
     30 fresh seeds (3000-3029, used nowhere else): the cause is ``none`` on at least 27."""
-    causes = []
-    for seed in range(3000, 3030):
-        rec = tmp_path / f"s{seed}.csv"
-        status, _, err = run_cli(["simulate", "--out", str(rec), "--seed", str(seed)])
-        assert status == 0, err
-        out = tmp_path / f"s{seed}.json"
-        status, _, err = run_cli(["diagnose", str(rec), "--json", str(out)])
-        assert status == 0, err
-        causes.append(json.loads(out.read_text())["cause"])
+    results = calibrate.parallel_map(_simulate_and_diagnose, range(3000, 3030), jobs=2)
+    for simulated, diagnosed, err, _ in results:
+        assert simulated == 0 and diagnosed == 0, err
+    causes = [cause for *_, cause in results]
     print(f"\npaper example, seeds 3000-3029: causes {sorted(causes)}")
     assert causes.count("none") >= 27, causes
 

@@ -108,7 +108,9 @@ LOOP_CALLED_STICTION = {
 
 @pytest.mark.slow
 def test_stiction_verdict_on_synthetic_plant_loops(capsys: pytest.CaptureFixture[str]) -> None:
-    rows = [calibrate.run_loop(c) for c in generator.loop_cases(128, start=LOOP_START)]
+    rows = calibrate.parallel_map(
+        calibrate.run_loop, generator.loop_cases(128, start=LOOP_START), jobs=2
+    )
     assert not [r["name"] for r in rows if r["error"]]  # a crash must not pass for a "no"
     found = calibrate.loop_verdicts(rows)
     with capsys.disabled():
