@@ -16,7 +16,6 @@ hbench.diagnose.calibrate bench --start 20000 --per-cell 3 --plants paper``).
 
 from __future__ import annotations
 
-import json
 import warnings
 from collections.abc import Callable
 from pathlib import Path
@@ -106,9 +105,9 @@ def test_target(held_out_rows: dict[str, list[dict[str, Any]]], group: str, whic
     assert _target(held_out_rows[group], which) >= _TARGETS[which][2]
 
 
-def _simulate_and_diagnose(seed: int) -> tuple[int, int, str, str | None]:
+def _simulate_and_diagnose(seed: int) -> tuple[int, str, dict[str, Any]]:
     """``hbench simulate --seed seed`` then ``hbench diagnose`` on its record, through the
-    command line: (simulate's status, diagnose's status, their stderr, the JSON's cause)."""
+    command line: (simulate's status and stderr, :func:`calibrate.diagnose_cli`'s answer)."""
     import contextlib
     import io
     import tempfile
@@ -116,15 +115,13 @@ def _simulate_and_diagnose(seed: int) -> tuple[int, int, str, str | None]:
     from hbench import cli
 
     with tempfile.TemporaryDirectory() as tmp:
-        rec, out = Path(tmp) / f"s{seed}.csv", Path(tmp) / f"s{seed}.json"
+        rec = Path(tmp) / f"s{seed}.csv"
         err = io.StringIO()
         with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
             simulated = cli.main(["simulate", "--out", str(rec), "--seed", str(seed)])
-            diagnosed = -1
-            if simulated == 0:
-                diagnosed = cli.main(["diagnose", str(rec), "--json", str(out)])
-        cause = json.loads(out.read_text())["cause"] if diagnosed == 0 else None
-        return simulated, diagnosed, err.getvalue(), cause
+        if simulated != 0:
+            return simulated, err.getvalue(), {}
+        return simulated, err.getvalue(), calibrate.diagnose_cli(rec)
 
 
 @pytest.mark.slow
@@ -132,9 +129,10 @@ def test_paper_example_without_effect_is_none() -> None:
     """``hbench simulate`` defaults (the paper's example, backlash d = 0.1, sigma^2 = 1e-3),
     30 fresh seeds (3000-3029, used nowhere else): the cause is ``none`` on at least 27."""
     results = calibrate.parallel_map(_simulate_and_diagnose, range(3000, 3030), jobs=2)
-    for simulated, diagnosed, err, _ in results:
-        assert simulated == 0 and diagnosed == 0, err
-    causes = [cause for *_, cause in results]
+    for simulated, err, diagnosed in results:
+        assert simulated == 0, err
+        assert diagnosed["status"] == 0, diagnosed["message"]
+    causes = [diagnosed["cause"] for *_, diagnosed in results]
     print(f"\npaper example, seeds 3000-3029: causes {sorted(causes)}")
     assert causes.count("none") >= 27, causes
 

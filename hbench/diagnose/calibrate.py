@@ -277,9 +277,10 @@ def stictiongpt_index(folder: Any) -> list[dict[str, str]]:
         return list(csv.DictReader(fh))
 
 
-def run_plant_log(path: Any) -> dict[str, Any]:
-    """``hbench diagnose`` on one plant log through the command line; the JSON (or the exit
-    status and message for a refused record)."""
+def diagnose_cli(path: Any, *options: str) -> dict[str, Any]:
+    """``hbench diagnose path --json ... *options`` through the command line, in this process
+    (its output swallowed); the JSON with ``status`` 0, or the exit status and the last line of
+    the message for a refused record."""
     import contextlib
     import io
     import json
@@ -292,11 +293,16 @@ def run_plant_log(path: Any) -> dict[str, Any]:
         out = Path(tmp) / "d.json"
         err = io.StringIO()
         with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
-            # only the valve class is scored, which no cause rule changes: the cheaper rule
-            status = cli.main(["diagnose", str(path), "--json", str(out), "--rule", "detectors"])
+            status = cli.main(["diagnose", str(path), "--json", str(out), *options])
         if status != 0:
             return {"status": status, "message": err.getvalue().strip().splitlines()[-1]}
         return {"status": 0, **json.loads(out.read_text())}
+
+
+def run_plant_log(path: Any) -> dict[str, Any]:
+    """``hbench diagnose`` on one plant log through the command line (:func:`diagnose_cli`)."""
+    # only the valve class is scored, which no cause rule changes: the cheaper rule
+    return diagnose_cli(path, "--rule", "detectors")
 
 
 def score_stictiongpt(
