@@ -3,12 +3,20 @@ true innovations ``A v`` beyond the nominal noise's moving-average order, for a 
 resonant coloured noise on one plant of each kind (the plants of calibration seeds 13002,
 11001, 11036 and 11071), and the expected ``z`` of the tail route's sum
 tried in section 9 (``colored-noise-tail-route.patch``) for the one-pole noise. Prints three
-tables; no argument."""
+tables without an argument.
+
+With ``--grid START PER_CELL PLANTS`` (as ``python -m hbench.diagnose.calibrate bench``'s
+options), section 10's table instead: for every ``colored-noise`` record of that grid, with the
+record's own noise (its ``d1``, ``c1`` and SNR), the noncentrality ``Q`` and the power at 5 % of
+the Ljung-Box test of the true innovations (the oracle: the true ``A``), and per plant the
+number of those records such a test would be expected to name."""
 
 from __future__ import annotations
 
+import argparse
+
 import numpy as np
-from scipy import signal
+from scipy import signal, stats
 
 from hbench.diagnose import benchmark_cases as bc
 from hbench.diagnose.generator import filter_norm
@@ -28,25 +36,60 @@ def autocovariance(b: np.ndarray, a: np.ndarray, n: int = 6000, lags: int = LAGS
 
 
 def innovations_acf(
-    case: bc.BenchCase, p: int, d: np.ndarray, c: np.ndarray, lags: int
+    case: bc.BenchCase, p: int, d: np.ndarray, c: np.ndarray, lags: int, snr: float = SNR
 ) -> tuple[np.ndarray, int, int, int]:
     """Autocorrelations at lags 0..lags of ``A v`` (``v`` the nominal noise plus ``c / d e`` at
-    SNR :data:`SNR`), the nominal noise's ``n_c``, the plant's ``na`` and the fit part's fast
+    SNR ``snr``), the nominal noise's ``n_c``, the plant's ``na`` and the fit part's fast
     samples ``n``."""
     plant = bc.nominal_plant(case)
     dp = plant.discretize(case.T / p)
     A = np.asarray(dp.a)
     cn, dn = bc._noise_filter(plant, dp)
-    scale = case.effect_params["s"] / SNR / filter_norm(c, d, 8000)
+    scale = case.effect_params["s"] / snr / filter_norm(c, d, 8000)
     g = autocovariance(np.convolve(cn, A), dn, lags=lags) * case.noise_sigma**2
     g = g + autocovariance(np.convolve(c, A), d, lags=lags) * scale**2
     return g / g[0], len(cn) - 1, len(A) - 1, int(case.K * p * 2 / 3)
 
 
-def noncentrality(case: bc.BenchCase, p: int, d: np.ndarray, c: np.ndarray) -> float:
-    """``n sum r_k^2`` over lags ``n_c + 1 .. LAGS`` of ``A v``."""
-    r, nc, _, n = innovations_acf(case, p, d, c, LAGS)
-    return float(n * np.sum(r[nc + 1 :] ** 2))  # lags n_c + 1 .. LAGS
+def noncentrality(
+    case: bc.BenchCase, p: int, d: np.ndarray, c: np.ndarray, snr: float = SNR
+) -> tuple[float, int]:
+    """``n sum r_k^2`` over lags ``n_c + 1 .. LAGS`` of ``A v``, and the number of those lags
+    (the test's degrees of freedom)."""
+    r, nc, _, n = innovations_acf(case, p, d, c, LAGS, snr)
+    return float(n * np.sum(r[nc + 1 :] ** 2)), LAGS - nc  # lags n_c + 1 .. LAGS
+
+
+def oracle_power(q: float, dof: int, level: float = 0.05) -> float:
+    """Power at ``level`` of a chi-square test with ``dof`` degrees of freedom whose statistic
+    has the noncentrality ``q`` (``level`` itself when ``q`` is 0: the test then finds a
+    record without an effect as often)."""
+    crit = stats.chi2.ppf(1.0 - level, dof)
+    return float(stats.ncx2.sf(crit, dof, q)) if q > 0 else level
+
+
+def grid_table(start: int, per_cell: int, plants: tuple[str, ...]) -> None:
+    """Section 10's table: the oracle on every ``colored-noise`` record of a benchmark grid."""
+    expected: dict[str, list[float]] = {}
+    for case in bc.bench_grid(start, per_cell, plants):
+        if case.effect != "colored-noise":
+            continue
+        ep = case.effect_params
+        d, c = np.array([1.0, -ep["d1"]]), np.array([1.0, ep["c1"]])
+        q, dof = noncentrality(case, case.p, d, c, ep["snr"])
+        power = oracle_power(q, dof)
+        poles = np.sort(np.roots(bc.nominal_plant(case).discretize(case.T / case.p).a).real)
+        print(
+            f"{case.seed} {case.plant:12s} p={case.p} d1={ep['d1']:.3f} "
+            f"plant poles {', '.join(f'{v:.3f}' for v in poles[::-1])}: "
+            f"Q = {q:.2f}, power {power:.2f}"
+        )
+        expected.setdefault(case.plant, []).append(power)
+    for plant, powers in expected.items():
+        print(
+            f"{plant}: {len(powers)} records, {sum(q > 0.9 for q in powers)} with power > 0.9; "
+            f"expected to be named by the oracle test at 5 %: {sum(powers):.1f}"
+        )
 
 
 def tail_z(case: bc.BenchCase, p: int, d: np.ndarray, c: np.ndarray) -> float:
@@ -68,7 +111,9 @@ def main() -> None:
     for name, seed in plants.items():
         case = bc.draw_bench_case(seed, "colored-noise", "linear", name)
         for p in (5, 8) if name == "paper" else (3, 8):
-            row = [noncentrality(case, p, np.array([1.0, -v]), np.array([1.0, C1])) for v in poles]
+            row = [
+                noncentrality(case, p, np.array([1.0, -v]), np.array([1.0, C1]))[0] for v in poles
+            ]
             print(f"{name:12s} p={p}", " ".join(f"{q:.0f}" for q in row))
     print(f"one pole d1, expected z of the tail sum (lags na + 1 .. {TAIL_LAGS}):")
     for name, seed in plants.items():
@@ -88,10 +133,16 @@ def main() -> None:
                     rho = np.exp(-zeta * wn * h)
                     th = wn * h * np.sqrt(1 - zeta**2)
                     d = np.array([1.0, -2 * rho * np.cos(th), rho**2])
-                    q = noncentrality(case, p, d, np.array([1.0]))
+                    q = noncentrality(case, p, d, np.array([1.0]))[0]
                     out.append(f"{period:g}s/{zeta:g}:{q:.0f}")
             print(f"{name:12s} p={p}", " ".join(out))
 
 
 if __name__ == "__main__":
-    main()
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--grid", nargs=3, metavar=("START", "PER_CELL", "PLANTS"))
+    args = ap.parse_args()
+    if args.grid:
+        grid_table(int(args.grid[0]), int(args.grid[1]), tuple(args.grid[2].split(",")))
+    else:
+        main()
