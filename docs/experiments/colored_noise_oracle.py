@@ -14,11 +14,12 @@ number of those records such a test would be expected to name."""
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 
 import numpy as np
-from scipy import signal, stats
 
 from hbench.diagnose import benchmark_cases as bc
+from hbench.diagnose import noise_oracle
 from hbench.diagnose.generator import filter_norm
 
 SNR = 2.2  # the coloured noise's SNR (the generator draws 1.5-3)
@@ -28,11 +29,9 @@ TAIL_LAGS = 40  # the tail sum's last lag (section 9)
 
 
 def autocovariance(b: np.ndarray, a: np.ndarray, n: int = 6000, lags: int = LAGS) -> np.ndarray:
-    """Autocovariances at lags 0..lags of ``b / a`` driven by unit white noise."""
-    imp = np.zeros(n)
-    imp[0] = 1.0
-    h = signal.lfilter(b, a, imp)
-    return np.array([h[: n - k] @ h[k:] for k in range(lags + 1)])
+    """Autocovariances at lags 0..lags of ``b / a`` driven by unit white noise (the package's
+    :func:`hbench.diagnose.noise_oracle.autocovariance`)."""
+    return noise_oracle.autocovariance(b, a, lags)
 
 
 def innovations_acf(
@@ -51,21 +50,10 @@ def innovations_acf(
     return g / g[0], len(cn) - 1, len(A) - 1, int(case.K * p * 2 / 3)
 
 
-def noncentrality(
-    case: bc.BenchCase, p: int, d: np.ndarray, c: np.ndarray, snr: float = SNR
-) -> tuple[float, int]:
-    """``n sum r_k^2`` over lags ``n_c + 1 .. LAGS`` of ``A v``, and the number of those lags
-    (the test's degrees of freedom)."""
-    r, nc, _, n = innovations_acf(case, p, d, c, LAGS, snr)
-    return float(n * np.sum(r[nc + 1 :] ** 2)), LAGS - nc  # lags n_c + 1 .. LAGS
-
-
-def oracle_power(q: float, dof: int, level: float = 0.05) -> float:
-    """Power at ``level`` of a chi-square test with ``dof`` degrees of freedom whose statistic
-    has the noncentrality ``q`` (``level`` itself when ``q`` is 0: the test then finds a
-    record without an effect as often)."""
-    crit = stats.chi2.ppf(1.0 - level, dof)
-    return float(stats.ncx2.sf(crit, dof, q)) if q > 0 else level
+def noncentrality(case: bc.BenchCase, p: int, d: np.ndarray, c: np.ndarray) -> float:
+    """``n sum r_k^2`` over lags ``n_c + 1 .. LAGS`` of ``A v`` at SNR :data:`SNR`
+    (:func:`hbench.diagnose.noise_oracle.noncentrality` with ``case`` at ``p``)."""
+    return noise_oracle.noncentrality(replace(case, p=p), d, c, SNR, LAGS)[0]
 
 
 def grid_table(start: int, per_cell: int, plants: tuple[str, ...]) -> None:
@@ -76,8 +64,9 @@ def grid_table(start: int, per_cell: int, plants: tuple[str, ...]) -> None:
             continue
         ep = case.effect_params
         d, c = np.array([1.0, -ep["d1"]]), np.array([1.0, ep["c1"]])
-        q, dof = noncentrality(case, case.p, d, c, ep["snr"])
-        power = oracle_power(q, dof)
+        q, _ = noise_oracle.noncentrality(case, d, c, ep["snr"])
+        power = noise_oracle.noise_shape_power(case)
+        assert power is not None
         poles = np.sort(np.roots(bc.nominal_plant(case).discretize(case.T / case.p).a).real)
         print(
             f"{case.seed} {case.plant:12s} p={case.p} d1={ep['d1']:.3f} "
@@ -111,9 +100,7 @@ def main() -> None:
     for name, seed in plants.items():
         case = bc.draw_bench_case(seed, "colored-noise", "linear", name)
         for p in (5, 8) if name == "paper" else (3, 8):
-            row = [
-                noncentrality(case, p, np.array([1.0, -v]), np.array([1.0, C1]))[0] for v in poles
-            ]
+            row = [noncentrality(case, p, np.array([1.0, -v]), np.array([1.0, C1])) for v in poles]
             print(f"{name:12s} p={p}", " ".join(f"{q:.0f}" for q in row))
     print(f"one pole d1, expected z of the tail sum (lags na + 1 .. {TAIL_LAGS}):")
     for name, seed in plants.items():
@@ -133,7 +120,7 @@ def main() -> None:
                     rho = np.exp(-zeta * wn * h)
                     th = wn * h * np.sqrt(1 - zeta**2)
                     d = np.array([1.0, -2 * rho * np.cos(th), rho**2])
-                    q = noncentrality(case, p, d, np.array([1.0]))[0]
+                    q = noncentrality(case, p, d, np.array([1.0]))
                     out.append(f"{period:g}s/{zeta:g}:{q:.0f}")
             print(f"{name:12s} p={p}", " ".join(out))
 

@@ -25,6 +25,7 @@ import numpy as np
 
 from hbench.diagnose import benchmark_cases as bc
 from hbench.diagnose import generator as gen
+from hbench.diagnose import noise_oracle
 from hbench.errors import tell
 from hbench.system import runtime
 
@@ -65,6 +66,8 @@ def run_case(case: gen.Case | bc.BenchCase) -> dict[str, Any]:
         "plant": plant,
         "p": case.p,
     }
+    if isinstance(case, bc.BenchCase) and case.effect == "colored-noise":
+        row["noise_shape_power"] = noise_oracle.noise_shape_power(case)
     try:
         d = diagnose(
             rec,
@@ -678,7 +681,26 @@ def bench_summary(rows: list[dict[str, Any]]) -> str:
             e = sum(r["cause"] == cause_label(eff) for r in sub)
             g = sum(r.get("gain", 0) > 0 for r in sub)
             out.append(f"  {eff:14s} {e:4d} {g:4d} {len(sub):4d}")
+    coloured = [r for r in rows if r.get("noise_shape_power") is not None]
+    if coloured:
+        out.append(oracle_summary(coloured))
     return "\n".join(out)
+
+
+def oracle_summary(rows: list[dict[str, Any]], at: float = 0.5) -> str:
+    """What the ``colored-noise`` rows could show (:mod:`hbench.diagnose.noise_oracle`): how
+    many a test of the noise's shape with the true plant finds with power ``at`` or more, the
+    cause right among those and among the rest, and the oracle's expected count."""
+    shows = [r for r in rows if r["noise_shape_power"] >= at]
+    hidden = [r for r in rows if r["noise_shape_power"] < at]
+    right = [sum(r["cause"] == "colored-noise" for r in g) for g in (shows, hidden)]
+    expected = sum(r["noise_shape_power"] for r in rows)
+    return (
+        f"colored-noise records whose noise's shape the oracle test (true plant, 5 %) finds "
+        f"with power >= {at:g}: {len(shows)} of {len(rows)} (cause right on {right[0]}); the "
+        f"other {len(hidden)}: cause right on {right[1]}; the oracle's expected count "
+        f"{expected:.1f} of {len(rows)}"
+    )
 
 
 def main_bench(argv: Sequence[str] | None = None) -> int:
