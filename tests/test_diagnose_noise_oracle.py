@@ -1,6 +1,7 @@
-"""The oracle of :mod:`hbench.diagnose.noise_oracle`: its power against simulated Ljung-Box tests
-of the true innovations, its limit where the noise's pole is the plant's, and the benchmark
-rows and summary that carry it. Cases from the calibration seeds (10000-19999)."""
+"""The oracle of :mod:`hbench.diagnose.noise_oracle`: its power against the test run on records
+of the benchmark's own simulator, its limit where the noise's pole is the plant's, and the
+benchmark rows and summary that carry it. Cases from the calibration seeds (10000-19999); the
+noise of the simulated records from seeds 1000000 on (the case's parameters kept)."""
 
 from __future__ import annotations
 
@@ -8,85 +9,99 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from scipy import signal, stats
+from scipy import signal
 
 from hbench.diagnose import benchmark_cases as bc
 from hbench.diagnose import calibrate
 from hbench.diagnose import noise_oracle as no
 
+#: Simulated records per case in the power check.
+DRAWS = 300
+#: What the derivation's asymptotics are off by at the benchmark's record lengths: the largest
+#: gap between simulated and predicted power on other cases (first-order 10022, 10039, 10110,
+#: 10112, 10120, 10137, 10141, 10151; NMP 10002, 10101; paper 10000, 10101, 10116; third-order
+#: 10001; 1000-2000 simulated records each: gaps -0.070 to +0.024, the largest 10151's). The
+#: cases checked below are disjoint from those.
+ASYMPTOTICS = 0.07
 
-def _first_order(seed: int) -> bc.BenchCase:
-    return bc.draw_bench_case(seed, "colored-noise", "linear", "first-order")
+
+def _innovations(case: bc.BenchCase) -> np.ndarray:
+    """``w = A y - q^-(delay + 1) B u`` of the case's record from the benchmark's simulator (a
+    linear valve: ``u`` is ``x`` held over each slow period)."""
+    rec = bc.simulate_bench_case(case)
+    dp = bc.case_plant(case).discretize(case.T / case.p)
+    num = np.concatenate([np.zeros(int(dp.delay) + 1), np.asarray(dp.b, float)])
+    u = np.repeat(rec.x[0], case.p)
+    return signal.lfilter(dp.a, [1.0], rec.y[0]) - signal.lfilter(num, [1.0], u)
 
 
-def _simulated_rejection(
-    case: bc.BenchCase, draws: int, rng: np.random.Generator
-) -> tuple[float, float]:
-    """Share of ``draws`` records of the true innovations ``w = A v`` (fit part's length) whose
-    Ljung-Box statistic over lags ``n_c + 1 .. 20`` passes the 5 % point: with the coloured part,
-    and of the nominal noise alone."""
+def _coloured(case: bc.BenchCase) -> tuple[np.ndarray, np.ndarray, float]:
     ep = case.effect_params
-    plant = bc.nominal_plant(case)
-    dp = plant.discretize(case.T / case.p)
-    A = np.asarray(dp.a)
-    cn, dn = bc._noise_filter(plant, dp)
-    c, d = np.array([1.0, ep["c1"]]), np.array([1.0, -ep["d1"]])
-    scale = ep["s"] / ep["snr"] / bc.filter_norm(c, d, 8000)
-    n, n_c, lags, settle = int(case.K * case.p * 2 / 3), len(cn) - 1, no.LAGS, 2000
-    crit = stats.chi2.ppf(0.95, lags - n_c)
-    k = np.arange(n_c + 1, lags + 1)
-    passed = np.zeros(2)
-    for _ in range(draws):
-        e = rng.standard_normal((2, n + settle))
-        w1 = signal.lfilter(np.convolve(cn, A), dn, e[0])[settle:] * case.noise_sigma
-        w2 = signal.lfilter(np.convolve(c, A), d, e[1])[settle:] * scale
-        for i, w in enumerate((w1 + w2, w1)):
-            w = w - w.mean()
-            g = np.array([w[: n - j] @ w[j:] for j in range(lags + 1)])
-            r = g[k] / g[0]
-            passed[i] += n * (n + 2) * np.sum(r**2 / (n - k)) > crit
-    return passed[0] / draws, passed[1] / draws
+    return np.array([1.0, ep["c1"]]), np.array([1.0, -ep["d1"]]), float(ep["snr"])
 
 
-@pytest.mark.parametrize("seed", [10039, 10022])
-def test_power_is_that_of_simulated_ljung_box_tests(seed: int) -> None:
-    """The noncentral chi-square's power against the share of simulated records of the true
-    innovations the Ljung-Box test rejects, within three binomial standard errors of the draws
-    plus 0.03 for the approximation the derivation states (Bartlett's correction left out);
-    the nominal noise alone is rejected at about the level. Seeds: first-order cases whose
-    power is mid-range (0.45 and 0.77), where a wrong noncentrality shows most."""
-    case = _first_order(seed)
+@pytest.mark.parametrize(
+    ("plant", "seed"),
+    [("first-order", 10122), ("first-order", 10136), ("nmp", 10145), ("paper", 10123)],
+)
+def test_power_is_the_rejection_rate_on_simulated_records(plant: str, seed: int) -> None:
+    """The share of :data:`DRAWS` records of one case (the benchmark's simulator, fresh noise
+    each) on which :func:`~hbench.diagnose.noise_oracle.shape_statistic` rejects at 5 % is the
+    predicted power, within three binomial standard errors plus :data:`ASYMPTOTICS`. The
+    first-order cases have mid-range power (0.68, 0.48: where a wrong noncentrality shows most);
+    on the NMP and paper plants the nominal noise is a strong moving average (the plain
+    Ljung-Box sum, without Bartlett's covariance, rejects there on about a third of the records
+    without any coloured noise) and the power is low (0.28, 0.18)."""
+    case = bc.draw_bench_case(seed, "colored-noise", "linear", plant)
     predicted = no.noise_shape_power(case)
-    assert predicted is not None and 0.2 < predicted < 0.9
-    draws = 400
-    coloured, nominal = _simulated_rejection(case, draws, np.random.default_rng(seed))
+    assert predicted is not None
+    _, n_c, n = no.innovations_acf(case, *_coloured(case))
+    rejected = sum(
+        no.shape_statistic(_innovations(replace(case, seed=1_000_000 + k))[:n], n_c)[1] < 0.05
+        for k in range(DRAWS)
+    )
+    slack = 3.0 * np.sqrt(predicted * (1 - predicted) / DRAWS) + ASYMPTOTICS
+    assert abs(rejected / DRAWS - predicted) <= slack, (rejected / DRAWS, predicted)
 
-    def slack(q: float) -> float:
-        return 3.0 * np.sqrt(q * (1 - q) / draws) + 0.03
 
-    assert abs(coloured - predicted) <= slack(predicted), (coloured, predicted)
-    assert abs(nominal - 0.05) <= slack(0.05), nominal
+def test_bartlett_covariance_of_a_white_series_is_the_identity() -> None:
+    rho = np.zeros(21)
+    rho[0] = 1.0
+    assert np.array_equal(no.bartlett(rho, 2, 20), np.eye(18))
+
+
+def test_bartlett_covariance_of_a_moving_average() -> None:
+    """``w = e + 0.5 e(t-1)``, ``rho_1 = 0.4``: beyond lag 1, ``n cov(r_k, r_(k+m)) = sum_i
+    rho_i rho_(i+m)``, which is ``1 + 2 rho_1^2`` at ``m = 0``, ``2 rho_1`` at 1, ``rho_1^2`` at 2
+    and 0 beyond."""
+    rho = np.zeros(11)
+    rho[:2] = [1.0, 0.4]
+    G = no.bartlett(rho, 1, 10)
+    assert G[0, 0] == pytest.approx(1 + 2 * 0.16)
+    assert G[0, 1] == pytest.approx(2 * 0.4)
+    assert G[0, 2] == pytest.approx(0.16)
+    assert G[0, 3] == 0.0 and np.allclose(G, G.T)
 
 
 def test_power_is_the_level_where_the_noise_pole_is_the_plants() -> None:
     """``D = A`` (a first-order plant, the coloured pole at the plant's, no zero): ``A C_c / D``
     is 1, the innovations are a moving average, and the test finds nothing beyond its level."""
-    case = _first_order(10039)
+    case = bc.draw_bench_case(10039, "colored-noise", "linear", "first-order")
     pole = float(np.roots(bc.nominal_plant(case).discretize(case.T / case.p).a)[0].real)
     same = replace(case, effect_params={**case.effect_params, "d1": pole, "c1": 0.0})
-    lam, dof = no.noncentrality(same, np.array([1.0, -pole]), np.array([1.0, 0.0]), 2.0)
+    lam, dof = no.noncentrality(same, np.array([1.0, 0.0]), np.array([1.0, -pole]), 2.0)
     assert lam < 1e-9 and dof >= 1
     assert no.noise_shape_power(same) == pytest.approx(0.05, abs=1e-6)
     assert no.power(0.0, dof, 0.01) == 0.01
 
 
-def test_paper_loop_coloured_noise_is_beyond_the_oracle() -> None:
+def test_paper_loop_coloured_noise_is_near_the_level() -> None:
     """The paper plant's poles (0.97-0.99) and the drawn noise poles (0.85-0.97): the residue of
-    the coloured part's tail is of order 1e-4, so the power stays at the level."""
+    the coloured part's tail is small, so the power stays near the level."""
     for seed in range(10000, 10004):
         case = bc.draw_bench_case(seed, "colored-noise", "linear", "paper")
         power = no.noise_shape_power(case)
-        assert power is not None and power < 0.06, (seed, power)
+        assert power is not None and power < 0.2, (seed, power)
 
 
 def test_only_coloured_cases_have_a_power() -> None:

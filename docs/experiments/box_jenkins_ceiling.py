@@ -56,7 +56,7 @@ def record_and_truth(case: bc.BenchCase) -> tuple[Any, Any, Any]:
     ep = case.effect_params
     N = case.K * case.p
     sc = bc._scenario(case, bc.case_plant(case), bc._nl_spec(case))
-    c, d = bc._noise_filter(bc.nominal_plant(case), sc.discrete_plant)
+    c, d = bc.noise_filter(bc.nominal_plant(case), sc.discrete_plant)
     if case.effect == "colored-noise":
         col = signal.lfilter((1.0, ep["c1"]), (1.0, -ep["d1"]), rng.standard_normal(N))
         add = col * (ep["s"] / ep["snr"]) / max(float(np.std(col)), 1e-300)

@@ -66,7 +66,7 @@ def record(case: bc.BenchCase, d1: float | None = None, outside: bool = False) -
     rng = np.random.default_rng(np.random.SeedSequence([20261128, case.seed]))
     ep = case.effect_params
     sc = bc._scenario(case, bc.case_plant(case), bc._nl_spec(case))
-    c, d = bc._noise_filter(bc.nominal_plant(case), sc.discrete_plant)
+    c, d = bc.noise_filter(bc.nominal_plant(case), sc.discrete_plant)
     col = signal.lfilter((1.0, ep["c1"]), (1.0, -ep["d1"]), rng.standard_normal(case.K * case.p))
     add = col * (ep["s"] / ep["snr"]) / max(float(np.std(col)), 1e-300)
     sc.noise = gen.InjectedNoise(case.noise_sigma, c, d, None)

@@ -31,6 +31,8 @@ GIVEN: dict[str, int | None] = {"tau": None}
 
 
 def options_with_tau(*args: Any, **kwargs: Any) -> IdentifyOptions:
+    """``IdentifyOptions(*args, **kwargs)`` with ``tau`` given as :data:`GIVEN`'s (when set and
+    the caller gives none)."""
     if GIVEN["tau"] is not None and kwargs.get("tau") is None:
         kwargs["tau"] = GIVEN["tau"]
     return IdentifyOptions(*args, **kwargs)

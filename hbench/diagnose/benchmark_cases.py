@@ -167,7 +167,7 @@ def _scenario(case: BenchCase, plant: ContinuousPlant, nl: dict[str, Any]) -> Sc
     return sc
 
 
-def _noise_filter(plant: ContinuousPlant, at: Any) -> tuple[np.ndarray, np.ndarray]:
+def noise_filter(plant: ContinuousPlant, at: Any) -> tuple[np.ndarray, np.ndarray]:
     """``(C, A)``: white noise through ``1 / den(s)`` of ``plant``, ZOH at the fast period of
     ``at`` (a discrete plant)."""
     return ContinuousFilter((1.0,), plant.den).filter(at)
@@ -301,7 +301,7 @@ def draw_bench_case(
     elif effect == "outliers":
         ep.update(share=float(rng.uniform(0.005, 0.015)), amplitude=[3.0 * s, 6.0 * s])
     # the nominal noise's level: the paper's sigma^2 on its plant, the paper's SNR elsewhere
-    c, d = _noise_filter(base, loops[0])
+    c, d = noise_filter(base, loops[0])
     sigma = np.sqrt(sigma2) if plant == "paper" else s / paper_snr(sigma2) / filter_norm(c, d, 8000)
     case = BenchCase(
         seed,
@@ -381,7 +381,7 @@ def simulate_bench_case(case: BenchCase) -> Record:
     sc = _scenario(case, case_plant(case), _nl_spec(case))
     # the nominal noise: the nominal plant's own process noise (an extra lag or delay of the
     # plant is the effect, not the noise's)
-    c, d = _noise_filter(nominal_plant(case), sc.discrete_plant)
+    c, d = noise_filter(nominal_plant(case), sc.discrete_plant)
     if case.effect == "colored-noise":
         cc, dd = (1.0, ep["c1"]), (1.0, -ep["d1"])
         col = signal.lfilter(cc, dd, rng.standard_normal(N))

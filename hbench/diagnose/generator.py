@@ -329,14 +329,19 @@ def _nl_spec(case: Case) -> dict[str, Any]:
     return out
 
 
-def filter_norm(c: Any, d: Any, n: int = 4000) -> float:
-    """``||C/D||_2`` over the first ``n`` terms of the impulse response: the standard deviation
-    of ``C/D e`` for unit white ``e``."""
+def impulse_response(c: Any, d: Any, n: int = 4000) -> np.ndarray:
+    """The first ``n`` terms of the impulse response of ``C(q) / D(q)``."""
     from scipy import signal as sps
 
     imp = np.zeros(n)
     imp[0] = 1.0
-    return float(np.linalg.norm(sps.lfilter(c, d, imp)))
+    return sps.lfilter(c, d, imp)
+
+
+def filter_norm(c: Any, d: Any, n: int = 4000) -> float:
+    """``||C/D||_2`` over the first ``n`` terms of the impulse response: the standard deviation
+    of ``C/D e`` for unit white ``e``."""
+    return float(np.linalg.norm(impulse_response(c, d, n)))
 
 
 def additive_effect(

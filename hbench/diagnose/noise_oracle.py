@@ -6,69 +6,95 @@ nominal model and calls ``colored-noise`` only noise with dynamics of its own, `
 not of a diagnosis; this module measures it with everything a diagnosis does not know.
 
 Derivation. A ``colored-noise`` case of :mod:`hbench.diagnose.benchmark_cases` has the output
-noise ``v = C_n / A e_1 + C_c / D e_2``: the nominal plant's process noise (``C_n / A``, ZOH of
-``1 / den(s)`` at the fast period, standard deviation ``noise_sigma`` for unit ``e_1``) plus the
-coloured part (``C_c = 1 + c1 q^-1``, ``D = 1 - d1 q^-1``, standard deviation ``s / snr``). With
-the true ``A`` the innovations are
+noise ``v = C_n / A e_1 + C_c / D e_2``: the nominal plant's process noise (``C_n / A``,
+:func:`hbench.diagnose.benchmark_cases.noise_filter`, driven by white noise of standard
+deviation ``noise_sigma``) plus the coloured part (``C_c = 1 + c1 q^-1``, ``D = 1 - d1 q^-1``,
+scaled to the standard deviation ``s / snr``). With the true ``A`` the innovations are
 
     w = A v = C_n e_1 + (A C_c / D) e_2.
 
-Without the coloured part ``w = C_n e_1`` is a moving average of order ``n_c = deg C_n``: its
-autocorrelations ``r_k`` vanish for ``k > n_c``. The Ljung-Box statistic of ``n`` samples of
-``w`` over the lags ``n_c + 1 .. L`` is then approximately chi-square with ``L - n_c`` degrees
-of freedom (each ``r_k`` with variance ``1 / n``, Bartlett's correction for the moving average
-left out), and with the coloured part approximately noncentral chi-square with the
-noncentrality
+``C_n`` is ``c_1 q^-1 + .. + c_na q^-na`` (the ZOH of ``1 / den(s)``): without the coloured part
+``w`` is a moving average and its autocorrelations ``rho_k`` vanish beyond lag ``n_c = na``.
+With it, ``A C_c / D = Q + R / D`` (``Q`` a polynomial of degree ``n_c``), so beyond lag ``n_c``
+only the tail ``R / D`` is left: the autocorrelations there, ``r = (rho_(n_c + 1) .. rho_L)``,
+are what a record can show of ``D``. Their estimates from ``n`` samples are asymptotically
+normal with mean ``r`` and covariance ``G / n``, Bartlett's formula for lags beyond a moving
+average's order: ``G[k, k'] = sum_(|i| <= n_c) rho_i rho_(i + k' - k)`` (``rho_i = 0`` for
+``|i| > n_c``). The test of ``r = 0`` by ``T = n r_hat' G_hat^-1 r_hat`` (``G_hat`` from the
+sample autocorrelations up to lag ``n_c``, :func:`shape_statistic`) is then chi-square with
+``L - n_c`` degrees of freedom under the nominal noise, and noncentral with
 
-    lambda = n sum_{k = n_c + 1}^{L} r_k^2,
+    lambda = n r' G^-1 r
 
-``r_k`` the autocorrelations of ``w`` computed exactly from the two filters' impulse responses.
+under the coloured one (``rho`` computed exactly from the two filters' impulse responses).
 The oracle's power at a level is the noncentral chi-square's probability beyond the central
-one's quantile: the chance that a test of the noise's shape, given the true dynamics, tells the
-record from one whose noise is the nominal model's (``lambda = 0``: the power is the level
-itself). Where ``D``'s pole lies among ``A``'s, ``A C_c / D`` is nearly a moving average and the
-power is the level (``docs/experiments/colored-noise.md``, sections 8 and 10).
+one's quantile: the chance that this test of the noise's shape, given the true dynamics, tells
+the record from one whose noise is the nominal model's (``lambda = 0``: the power is the level
+itself). Where ``D``'s pole is close to ``A``'s slow poles, ``R`` is small (``R`` is
+proportional to ``A(d1)``) and the power stays near the level
+(``docs/experiments/colored-noise.md``, sections 8 and 10).
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy import signal, stats
+from scipy import stats
 
 from hbench.diagnose import benchmark_cases as bc
+from hbench.diagnose import stats as dstats
+from hbench.diagnose.effects import ColoredNoise
+from hbench.diagnose.generator import filter_norm, impulse_response
+from hbench.diagnose.nominal import FIT_FRACTION
 
-#: Last lag of the Ljung-Box sum (the diagnosis's whiteness route sums over 20 lags too).
-LAGS = 20
+#: Last lag of the test (that of the diagnosis's whiteness route).
+LAGS = ColoredNoise.NLAGS
 #: Length of the impulse responses the autocovariances are summed over.
 IMPULSE = 6000
 
 
-def autocovariance(b: np.ndarray, a: np.ndarray, lags: int = LAGS) -> np.ndarray:
-    """Autocovariances at lags ``0 .. lags`` of ``b(q) / a(q) e`` for unit white ``e`` (the
+def autocovariance(c: np.ndarray, d: np.ndarray, lags: int = LAGS) -> np.ndarray:
+    """Autocovariances at lags ``0 .. lags`` of ``c(q) / d(q) e`` for unit white ``e`` (the
     impulse response's first :data:`IMPULSE` terms)."""
-    imp = np.zeros(IMPULSE)
-    imp[0] = 1.0
-    h = signal.lfilter(b, a, imp)
+    h = impulse_response(c, d, IMPULSE)
     return np.array([h[: IMPULSE - k] @ h[k:] for k in range(lags + 1)])
 
 
-def noncentrality(
-    case: bc.BenchCase, d: np.ndarray, c: np.ndarray, snr: float, lags: int = LAGS
-) -> tuple[float, int]:
-    """``(lambda, L - n_c)`` of the module's derivation for ``case``'s plant, ``p`` and nominal
-    noise, with a coloured part ``c / d`` at ``snr`` (its standard deviation ``s / snr``), over
-    the fit part's fast samples (two thirds of the record, as the diagnosis's)."""
+def innovations_acf(
+    case: bc.BenchCase, c: np.ndarray, d: np.ndarray, snr: float, lags: int = LAGS
+) -> tuple[np.ndarray, int, int]:
+    """``(rho, n_c, n)``: the autocorrelations at lags ``0 .. lags`` of the true innovations
+    ``w = A v`` of ``case``'s plant, ``p`` and nominal noise with a coloured part ``c / d`` at
+    ``snr`` (its standard deviation ``s / snr``); the nominal noise's moving-average order; the
+    fit part's fast samples."""
     plant = bc.nominal_plant(case)
     dp = plant.discretize(case.T / case.p)
     A = np.asarray(dp.a, float)
-    cn, dn = bc._noise_filter(plant, dp)
-    scale = case.effect_params["s"] / snr / bc.filter_norm(c, d, 8000)
+    cn, dn = bc.noise_filter(plant, dp)
+    scale = case.effect_params["s"] / snr / filter_norm(c, d, 8000)
     g = autocovariance(np.convolve(cn, A), dn, lags) * case.noise_sigma**2
     g = g + autocovariance(np.convolve(c, A), d, lags) * scale**2
-    r = g / g[0]
-    n_c = len(cn) - 1
-    n = int(case.K * case.p * 2 / 3)
-    return float(n * np.sum(r[n_c + 1 :] ** 2)), lags - n_c
+    return g / g[0], len(cn) - 1, int(case.K * FIT_FRACTION) * case.p
+
+
+def bartlett(rho: np.ndarray, n_c: int, lags: int) -> np.ndarray:
+    """``G`` (lags ``n_c + 1 .. lags`` square): ``n`` times the covariance of the sample
+    autocorrelations beyond a moving average of order ``n_c`` whose autocorrelations at lags
+    ``0 .. n_c`` are ``rho[: n_c + 1]`` (Bartlett's formula)."""
+    two_sided = np.concatenate([rho[n_c:0:-1], rho[: n_c + 1]])  # lags -n_c .. n_c
+    g = np.correlate(two_sided, two_sided, "full")[2 * n_c :]  # g(m), m = 0 .. 2 n_c
+    m = np.abs(np.subtract.outer(np.arange(lags - n_c), np.arange(lags - n_c)))
+    return np.where(m <= 2 * n_c, g[np.minimum(m, 2 * n_c)], 0.0)
+
+
+def noncentrality(
+    case: bc.BenchCase, c: np.ndarray, d: np.ndarray, snr: float, lags: int = LAGS
+) -> tuple[float, int]:
+    """``(lambda, L - n_c)`` of the module's derivation for ``case`` with a coloured part
+    ``c / d`` at ``snr``: the noncentrality and the degrees of freedom."""
+    rho, n_c, n = innovations_acf(case, c, d, snr, lags)
+    r = rho[n_c + 1 :]
+    lam = float(n * r @ np.linalg.solve(bartlett(rho, n_c, lags), r))
+    return max(lam, 0.0), lags - n_c
 
 
 def power(lam: float, dof: int, level: float = 0.05) -> float:
@@ -85,6 +111,15 @@ def noise_shape_power(case: bc.BenchCase, level: float = 0.05) -> float | None:
         return None
     ep = case.effect_params
     lam, dof = noncentrality(
-        case, np.array([1.0, -ep["d1"]]), np.array([1.0, ep["c1"]]), float(ep["snr"])
+        case, np.array([1.0, ep["c1"]]), np.array([1.0, -ep["d1"]]), float(ep["snr"])
     )
     return power(lam, dof, level)
+
+
+def shape_statistic(w: np.ndarray, n_c: int, lags: int = LAGS) -> tuple[float, float]:
+    """The test of the derivation on a series ``w`` of innovations: ``T`` and its chi-square
+    p-value with ``lags - n_c`` degrees of freedom."""
+    rho = dstats.acf(w, lags)
+    r = rho[n_c + 1 :]
+    t = float(w.size * r @ np.linalg.solve(bartlett(rho, n_c, lags), r))
+    return t, float(stats.chi2.sf(t, lags - n_c))

@@ -48,6 +48,8 @@ from hbench.sim.records import Record
 
 #: Denominator orders of the nominal blind model (the ``order`` effect goes beyond).
 NA_NOMINAL: tuple[int, int] = (1, 2)
+#: Share of a record's slow samples in the fit part (the rest validates), by default.
+FIT_FRACTION = 2 / 3
 #: Fewest slow samples in the fit part and in the validation part.
 MIN_FIT, MIN_VAL = 80, 40
 #: Output-error orders and delays searched for ``p = 1``.
@@ -174,7 +176,9 @@ class Context:
         )
 
 
-def make_context(record: Record, fit_fraction: float = 2 / 3, options: Any = None) -> Context:
+def make_context(
+    record: Record, fit_fraction: float = FIT_FRACTION, options: Any = None
+) -> Context:
     """Check that ``record`` can be diagnosed and split it."""
     if record.runs != 1:
         raise InputError(f"diagnose takes one run, the record has {record.runs}")

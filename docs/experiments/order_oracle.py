@@ -1,0 +1,107 @@
+"""``order-effect.md``, section 7: what the ``order`` records of a benchmark grid show of their
+third pole when the valve's output is known (the oracle).
+
+    python docs/experiments/order_oracle.py START PER_CELL PLANTS [--jobs 2]
+
+(the grid as ``python -m hbench.diagnose.calibrate bench``'s options). For every ``order``
+record, with the true inner signal ``U`` (the Truth's valve on the record's ``x``, held over each
+slow period) and the measured ``y``, validation simulation fit (%) of:
+
+* the true plant (the extra lag included) simulated from ``U`` from rest, the output gain and
+  offset by least squares on the fit part;
+* the best model with the nominal family's two poles: output error (``core.oe_fit``, the
+  variable-projection refinement) fitted on the fit part from ``U``, started at the true plant's
+  two slowest poles and at the least-squares start, ``nb`` 2-3, every delay ``0 .. 4 p``; the
+  fit with the smallest fit-part residual is kept.
+
+The difference is what the third pole is worth on the diagnosis's criterion when nothing but the
+plant's order is wrong: the most an ``order`` extension over a right two-pole nominal can gain.
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+import numpy as np
+from scipy import signal
+
+from hbench.diagnose import benchmark_cases as bc
+from hbench.diagnose import calibrate, core
+from hbench.diagnose import nominal as nm
+from hbench.diagnose.class_ceiling import true_inner
+
+
+def true_plant_fit(case: bc.BenchCase, ctx: nm.Context, u: np.ndarray) -> float:
+    """The true plant (the extra lag included) simulated from ``u`` from rest, as the record's
+    loop starts, the output gain and offset by least squares on the fit part."""
+    dp = bc._scenario(case, bc.case_plant(case), {"name": "linear"}).discrete_plant
+    # the discrete plant's numerator starts one sample after its delay (b1 q^-1 + ...)
+    num = np.concatenate([np.zeros(int(dp.delay) + 1), np.asarray(dp.b, float)])
+    z = signal.lfilter(num, np.asarray(dp.a, float), u)
+    X = np.column_stack([z, np.ones_like(z)])
+    coef = np.linalg.lstsq(X[ctx.fit_idx], ctx.y[ctx.fit_idx], rcond=None)[0]
+    return core.fit_percent(ctx.y[ctx.val_idx], (X @ coef)[ctx.val_idx])
+
+
+def best_oe(ctx: nm.Context, u: np.ndarray, na: int, starts: list[np.ndarray | None]) -> core.OEFit:
+    """The output-error model with ``na`` poles of smallest fit-part residual over ``nb`` in
+    ``na .. na + 1``, every delay ``0 .. 4 p`` and the denominators ``starts`` (None: the
+    least-squares start), each refined by variable projection."""
+    best: core.OEFit | None = None
+    for d in range(0, 4 * ctx.p + 1):
+        for nb in (na, na + 1):
+            for a0 in starts:
+                f = core.oe_fit(u, ctx.y, na, nb, d, ctx.fit_idx, a_init=a0, refine=True)
+                if np.isfinite(f.rss) and (best is None or f.rss < best.rss):
+                    best = f
+    assert best is not None
+    return best
+
+
+def one(case: bc.BenchCase) -> dict[str, Any]:
+    ctx = nm.make_context(bc.simulate_bench_case(case))
+    u = np.repeat(true_inner(case, ctx.x), ctx.p)
+    two = best_oe(ctx, u, 2, [None])
+    a2 = np.asarray(two.lin.a, float)
+    three = best_oe(ctx, u, 3, [None, np.convolve(a2, [1.0, -0.9]), np.convolve(a2, [1.0, -0.7])])
+    val = ctx.val_idx
+    return {
+        "case": case,
+        "true": true_plant_fit(case, ctx, u),
+        "two": core.fit_percent(ctx.y[val], two.yhat[val]),
+        "three": core.fit_percent(ctx.y[val], three.yhat[val]),
+        "delay": int(two.lin.delay),
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("start", type=int)
+    ap.add_argument("per_cell", type=int)
+    ap.add_argument("plants")
+    ap.add_argument("--jobs", type=int, default=2)
+    args = ap.parse_args()
+    grid = bc.bench_grid(args.start, args.per_cell, tuple(args.plants.split(",")))
+    cases = [c for c in grid if c.effect in ("order", "none")]
+    rows = calibrate.parallel_map(one, cases, args.jobs)
+    gains: dict[tuple[str, str], list[float]] = {}
+    for r in rows:
+        c = r["case"]
+        gain = r["three"] - r["two"]
+        gains.setdefault((c.plant, c.effect), []).append(gain)
+        print(
+            f"{c.seed} {c.plant} {c.cls}/{c.effect} p={c.p}: true plant {r['true']:.1f}, "
+            f"two poles {r['two']:.1f} (delay {r['delay']}), three poles {r['three']:.1f}: "
+            f"third pole worth {gain:+.1f}"
+        )
+    for (plant, effect), g in sorted(gains.items()):
+        print(
+            f"{plant} {effect}: {len(g)} records; third pole worth >= 2 points on "
+            f"{sum(v >= 2.0 for v in g)}, median {np.median(g):+.1f}, range "
+            f"{min(g):+.1f} to {max(g):+.1f}"
+        )
+
+
+if __name__ == "__main__":
+    main()
