@@ -7,9 +7,10 @@ tables without an argument.
 
 With ``--grid START PER_CELL PLANTS`` (as ``python -m hbench.diagnose.calibrate bench``'s
 options), section 10's table instead: for every ``colored-noise`` record of that grid, with the
-record's own noise (its ``d1``, ``c1`` and SNR), the noncentrality ``Q`` and the power at 5 % of
-the Ljung-Box test of the true innovations (the oracle: the true ``A``), and per plant the
-number of those records such a test would be expected to name."""
+record's own noise (its ``d1``, ``c1`` and SNR), the noncentrality ``lambda`` and the power at
+5 % of :mod:`hbench.diagnose.noise_oracle`'s test of the true innovations (the oracle: the true
+``A``) under both its nulls, and per plant the number of those records the test would be
+expected to name."""
 
 from __future__ import annotations
 
@@ -47,31 +48,43 @@ def noncentrality(case: bc.BenchCase, p: int, d: np.ndarray, c: np.ndarray) -> f
 
 
 def grid_table(start: int, per_cell: int, plants: tuple[str, ...]) -> None:
-    """Section 10's table: the oracle on every ``colored-noise`` record of a benchmark grid."""
-    expected: dict[str, list[float]] = {}
+    """Section 10's table: the oracle under both nulls of :mod:`hbench.diagnose.noise_oracle` on
+    every ``colored-noise`` record of a benchmark grid, with the chance that it names 5 or more
+    of them."""
+    powers: dict[str, dict[str, list[float]]] = {null: {} for null in noise_oracle.NULLS}
     for case in bc.bench_grid(start, per_cell, plants):
         if case.effect != "colored-noise":
             continue
         ep = case.effect_params
         c, d = np.array([1.0, ep["c1"]]), np.array([1.0, -ep["d1"]])
-        lam, _ = noise_oracle.noncentrality(case, c, d, ep["snr"])
-        power = noise_oracle.noise_shape_power(case)
-        assert power is not None
         poles = np.sort(np.roots(bc.nominal_plant(case).discretize(case.T / case.p).a).real)
-        print(
+        line = [
             f"{case.seed} {case.plant:12s} p={case.p} d1={ep['d1']:.3f} "
-            f"plant poles {', '.join(f'{v:.3f}' for v in poles[::-1])}: "
-            f"lambda = {lam:.2f}, power {power:.2f}"
-        )
-        expected.setdefault(case.plant, []).append(power)
-    total = 0.0
-    for plant, powers in expected.items():
-        total += sum(powers)
+            f"plant poles {', '.join(f'{v:.3f}' for v in poles[::-1])}:"
+        ]
+        for null in noise_oracle.NULLS:
+            acf = noise_oracle.innovations_acf(case, c, d, ep["snr"], null=null)
+            lam, _ = noise_oracle.noncentrality(*acf)
+            power = noise_oracle.noise_shape_power(case, null=null)
+            assert power is not None
+            powers[null].setdefault(case.plant, []).append(power)
+            line.append(f"{null} lambda = {lam:.2f}, power {power:.2f};")
+        print(" ".join(line))
+    for null, by_plant in powers.items():
+        every: list[float] = []
+        for plant, p in by_plant.items():
+            every += p
+            print(
+                f"null {null}, {plant}: {len(p)} records, power {min(p):.2f}-{max(p):.2f}, "
+                f"expected to be named at 5 %: {sum(p):.2f}"
+            )
+        dist = np.array([1.0])
+        for q in every:
+            dist = np.convolve(dist, [1.0 - q, q])
         print(
-            f"{plant}: {len(powers)} records, {sum(q > 0.9 for q in powers)} with power > 0.9; "
-            f"expected to be named by the oracle test at 5 %: {sum(powers):.2f}"
+            f"null {null}, all: expected {sum(every):.2f} of {len(every)}; "
+            f"chance of 5 or more: {dist[5:].sum():.3f}"
         )
-    print(f"all: expected {total:.2f}")
 
 
 def tail_z(case: bc.BenchCase, p: int, d: np.ndarray, c: np.ndarray) -> float:

@@ -15,9 +15,9 @@ to give ``tau``; nothing in the package changes.
 
 from __future__ import annotations
 
-import argparse
 from typing import Any
 
+import grid_args
 import numpy as np
 
 from hbench.diagnose import benchmark_cases as bc
@@ -59,19 +59,13 @@ def both(item: tuple[bc.BenchCase, int]) -> tuple[dict[str, Any], dict[str, Any]
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("start", type=int)
-    ap.add_argument("per_cell", type=int)
-    ap.add_argument("plants")
-    ap.add_argument("--jobs", type=int, default=2)
-    args = ap.parse_args()
+    cases, jobs = grid_args.parse(__doc__.split("\n\n")[0])
     nm.IdentifyOptions = options_with_tau  # this process and its forked workers only
-    cases = bc.bench_grid(args.start, args.per_cell, tuple(args.plants.split(",")))
-    read = calibrate.parallel_map(taus, cases, args.jobs)
+    read = calibrate.parallel_map(taus, cases, jobs)
     wrong = [(c, t) for c, (s, t) in zip(cases, read, strict=True) if s != t]
     for c, (s, t) in zip(cases, read, strict=True):
         print(f"{c.seed} {c.plant} p={c.p} {c.cls}/{c.effect}: selected tau {s}, plant's {t}")
-    rows = calibrate.parallel_map(both, wrong, args.jobs)
+    rows = calibrate.parallel_map(both, wrong, jobs)
     total: dict[str, np.ndarray] = {}
     for (case, _), (b, a) in zip(wrong, rows, strict=True):
         print(

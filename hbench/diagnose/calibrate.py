@@ -67,7 +67,9 @@ def run_case(case: gen.Case | bc.BenchCase) -> dict[str, Any]:
         "p": case.p,
     }
     if isinstance(case, bc.BenchCase) and case.effect == "colored-noise":
-        row["noise_shape_power"] = noise_oracle.noise_shape_power(case)
+        row["noise_shape_power"] = {
+            null: noise_oracle.noise_shape_power(case, null=null) for null in noise_oracle.NULLS
+        }
     try:
         d = diagnose(
             rec,
@@ -683,23 +685,23 @@ def bench_summary(rows: list[dict[str, Any]]) -> str:
             out.append(f"  {eff:14s} {e:4d} {g:4d} {len(sub):4d}")
     coloured = [r for r in rows if r.get("noise_shape_power") is not None]
     if coloured:
-        out.append(oracle_summary(coloured))
+        out.extend(oracle_summary(coloured, null) for null in noise_oracle.NULLS)
     return "\n".join(out)
 
 
-def oracle_summary(rows: list[dict[str, Any]], at: float = 0.5) -> str:
-    """What the ``colored-noise`` rows could show (:mod:`hbench.diagnose.noise_oracle`): how
-    many a test of the noise's shape with the true plant finds with power ``at`` or more, the
-    cause right among those and among the rest, and the oracle's expected count."""
-    shows = [r for r in rows if r["noise_shape_power"] >= at]
-    hidden = [r for r in rows if r["noise_shape_power"] < at]
+def oracle_summary(rows: list[dict[str, Any]], null: str, at: float = 0.5) -> str:
+    """What the ``colored-noise`` rows could show (:mod:`hbench.diagnose.noise_oracle`, its
+    ``null``): how many a test of the noise's shape with the true plant finds with power ``at``
+    or more, the cause right among those and among the rest, and the oracle's expected count."""
+    power = [r["noise_shape_power"][null] for r in rows]
+    shows = [r for r, q in zip(rows, power, strict=True) if q >= at]
+    hidden = [r for r, q in zip(rows, power, strict=True) if q < at]
     right = [sum(r["cause"] == "colored-noise" for r in g) for g in (shows, hidden)]
-    expected = sum(r["noise_shape_power"] for r in rows)
     return (
-        f"colored-noise records whose noise's shape the oracle test (true plant, 5 %) finds "
-        f"with power >= {at:g}: {len(shows)} of {len(rows)} (cause right on {right[0]}); the "
-        f"other {len(hidden)}: cause right on {right[1]}; the oracle's expected count "
-        f"{expected:.1f} of {len(rows)}"
+        f"colored-noise records whose noise's shape the oracle test (true plant, null "
+        f"{null!r}, 5 %) finds with power >= {at:g}: {len(shows)} of {len(rows)} (cause right "
+        f"on {right[0]}); the other {len(hidden)}: cause right on {right[1]}; the oracle's "
+        f"expected count {sum(power):.1f} of {len(rows)}"
     )
 
 

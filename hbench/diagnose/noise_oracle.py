@@ -13,25 +13,33 @@ scaled to the standard deviation ``s / snr``). With the true ``A`` the innovatio
 
     w = A v = C_n e_1 + (A C_c / D) e_2.
 
-``C_n`` is ``c_1 q^-1 + .. + c_na q^-na`` (the ZOH of ``1 / den(s)``): without the coloured part
-``w`` is a moving average and its autocorrelations ``rho_k`` vanish beyond lag ``n_c = na``.
-With it, ``A C_c / D = Q + R / D`` (``Q`` a polynomial of degree ``n_c``), so beyond lag ``n_c``
-only the tail ``R / D`` is left: the autocorrelations there, ``r = (rho_(n_c + 1) .. rho_L)``,
-are what a record can show of ``D``. Their estimates from ``n`` samples are asymptotically
-normal with mean ``r`` and covariance ``G / n``, Bartlett's formula for lags beyond a moving
-average's order: ``G[k, k'] = sum_(|i| <= n_c) rho_i rho_(i + k' - k)`` (``rho_i = 0`` for
-``|i| > n_c``). The test of ``r = 0`` by ``T = n r_hat' G_hat^-1 r_hat`` (``G_hat`` from the
+The null hypothesis is that ``w`` is a moving average of order ``n_c`` (any coefficients): its
+autocorrelations ``rho_k`` vanish beyond lag ``n_c``. Which ``n_c`` is the README's convention
+("``C(q) / A(q) e`` belongs to the nominal model") is a choice, made explicit here as ``null``:
+
+* ``"armax"`` (default): ``C`` of the plant's order, ``n_c = na`` (ARMAX with ``deg C = deg A``,
+  the usual family). ``A C_c / D = Q + R / D`` with ``deg Q = na``, so beyond lag ``na`` only
+  the tail ``R / D`` is left (``R`` proportional to ``A(d1)``, small where ``D``'s pole is close
+  to ``A``'s slow poles).
+* ``"process"``: ``C`` of the generator's own process noise, whose ZOH numerator
+  ``c_1 q^-1 + .. + c_na q^-na`` makes ``w`` a moving average of order ``na - 1``: lag ``na``
+  joins the test, and there ``Q`` shows. Any noise with an instantaneous part (white measurement
+  noise on ``y`` among it) moves that lag too; the benchmark's records without an effect carry
+  none.
+
+Beyond lag ``n_c`` the sample autocorrelations ``r = (rho_(n_c + 1) .. rho_L)`` of ``n`` samples
+are asymptotically normal with mean ``r`` and covariance ``G / n``, Bartlett's formula beyond a
+moving average's order: ``G[k, k'] = sum_(|i| <= n_c) rho_i rho_(i + k' - k)`` (``rho_i = 0``
+for ``|i| > n_c``). The test of ``r = 0`` by ``T = n r_hat' G_hat^-1 r_hat`` (``G_hat`` from the
 sample autocorrelations up to lag ``n_c``, :func:`shape_statistic`) is then chi-square with
-``L - n_c`` degrees of freedom under the nominal noise, and noncentral with
+``L - n_c`` degrees of freedom under the null, and noncentral with
 
     lambda = n r' G^-1 r
 
-under the coloured one (``rho`` computed exactly from the two filters' impulse responses).
+under the coloured noise (``rho`` computed exactly from the two filters' impulse responses).
 The oracle's power at a level is the noncentral chi-square's probability beyond the central
-one's quantile: the chance that this test of the noise's shape, given the true dynamics, tells
-the record from one whose noise is the nominal model's (``lambda = 0``: the power is the level
-itself). Where ``D``'s pole is close to ``A``'s slow poles, ``R`` is small (``R`` is
-proportional to ``A(d1)``) and the power stays near the level
+one's quantile: the chance that this test, given the true dynamics, tells the record from one
+whose noise is of the null's family (``lambda = 0``: the power is the level itself)
 (``docs/experiments/colored-noise.md``, sections 8 and 10).
 """
 
@@ -59,13 +67,22 @@ def autocovariance(c: np.ndarray, d: np.ndarray, lags: int = LAGS) -> np.ndarray
     return np.array([h[: IMPULSE - k] @ h[k:] for k in range(lags + 1)])
 
 
+#: The nulls of the module's derivation.
+NULLS = ("armax", "process")
+
+
 def innovations_acf(
-    case: bc.BenchCase, c: np.ndarray, d: np.ndarray, snr: float, lags: int = LAGS
+    case: bc.BenchCase,
+    c: np.ndarray,
+    d: np.ndarray,
+    snr: float,
+    lags: int = LAGS,
+    null: str = "armax",
 ) -> tuple[np.ndarray, int, int]:
     """``(rho, n_c, n)``: the autocorrelations at lags ``0 .. lags`` of the true innovations
     ``w = A v`` of ``case``'s plant, ``p`` and nominal noise with a coloured part ``c / d`` at
-    ``snr`` (its standard deviation ``s / snr``); the nominal noise's moving-average order; the
-    fit part's fast samples."""
+    ``snr`` (its standard deviation ``s / snr``); the null's moving-average order (``null``, one
+    of :data:`NULLS`, :func:`null_order`); the fit part's fast samples."""
     plant = bc.nominal_plant(case)
     dp = plant.discretize(case.T / case.p)
     A = np.asarray(dp.a, float)
@@ -73,7 +90,22 @@ def innovations_acf(
     scale = case.effect_params["s"] / snr / filter_norm(c, d, 8000)
     g = autocovariance(np.convolve(cn, A), dn, lags) * case.noise_sigma**2
     g = g + autocovariance(np.convolve(c, A), d, lags) * scale**2
-    return g / g[0], len(cn) - 1, int(case.K * FIT_FRACTION) * case.p
+    return g / g[0], null_order(case, null), int(case.K * FIT_FRACTION) * case.p
+
+
+def null_order(case: bc.BenchCase, null: str = "armax") -> int:
+    """The moving-average order ``n_c`` of the innovations under ``null`` (one of
+    :data:`NULLS`) for ``case``'s plant and ``p``: the plant's order (``"armax"``), or the span
+    of its process noise's nonzero numerator taps (``"process"``: ``na - 1``)."""
+    if null not in NULLS:
+        raise ValueError(f"null must be one of {NULLS}, got {null!r}")
+    plant = bc.nominal_plant(case)
+    dp = plant.discretize(case.T / case.p)
+    if null == "armax":
+        return len(dp.a) - 1
+    cn, _ = bc.noise_filter(plant, dp)
+    taps = np.flatnonzero(np.abs(np.asarray(cn, float)) > 0)
+    return int(taps[-1] - taps[0])
 
 
 def bartlett(rho: np.ndarray, n_c: int, lags: int) -> np.ndarray:
@@ -86,12 +118,11 @@ def bartlett(rho: np.ndarray, n_c: int, lags: int) -> np.ndarray:
     return np.where(m <= 2 * n_c, g[np.minimum(m, 2 * n_c)], 0.0)
 
 
-def noncentrality(
-    case: bc.BenchCase, c: np.ndarray, d: np.ndarray, snr: float, lags: int = LAGS
-) -> tuple[float, int]:
-    """``(lambda, L - n_c)`` of the module's derivation for ``case`` with a coloured part
-    ``c / d`` at ``snr``: the noncentrality and the degrees of freedom."""
-    rho, n_c, n = innovations_acf(case, c, d, snr, lags)
+def noncentrality(rho: np.ndarray, n_c: int, n: int) -> tuple[float, int]:
+    """``(lambda, L - n_c)`` of the module's derivation from the autocorrelations ``rho`` at
+    lags ``0 .. L`` of ``n`` samples' innovations (:func:`innovations_acf`) and the null's
+    moving-average order ``n_c``: the noncentrality and the degrees of freedom."""
+    lags = rho.size - 1
     r = rho[n_c + 1 :]
     lam = float(n * r @ np.linalg.solve(bartlett(rho, n_c, lags), r))
     return max(lam, 0.0), lags - n_c
@@ -104,15 +135,14 @@ def power(lam: float, dof: int, level: float = 0.05) -> float:
     return float(stats.ncx2.sf(crit, dof, lam)) if lam > 0 else float(level)
 
 
-def noise_shape_power(case: bc.BenchCase, level: float = 0.05) -> float | None:
-    """The oracle's power at ``level`` on ``case``'s own coloured noise (its ``d1``, ``c1`` and
-    ``snr``); None for a case whose effect is not ``colored-noise``."""
+def noise_shape_power(case: bc.BenchCase, level: float = 0.05, null: str = "armax") -> float | None:
+    """The oracle's power at ``level`` under ``null`` on ``case``'s own coloured noise (its
+    ``d1``, ``c1`` and ``snr``); None for a case whose effect is not ``colored-noise``."""
     if case.effect != "colored-noise":
         return None
     ep = case.effect_params
-    lam, dof = noncentrality(
-        case, np.array([1.0, ep["c1"]]), np.array([1.0, -ep["d1"]]), float(ep["snr"])
-    )
+    c, d = np.array([1.0, ep["c1"]]), np.array([1.0, -ep["d1"]])
+    lam, dof = noncentrality(*innovations_acf(case, c, d, float(ep["snr"]), null=null))
     return power(lam, dof, level)
 
 
