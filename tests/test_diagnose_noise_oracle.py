@@ -36,14 +36,8 @@ def _innovations(case: bc.BenchCase) -> np.ndarray:
     linear valve: ``u`` is ``x`` held over each slow period)."""
     rec = bc.simulate_bench_case(case)
     dp = bc.case_plant(case).discretize(case.T / case.p)
-    num = np.concatenate([np.zeros(int(dp.delay) + 1), np.asarray(dp.b, float)])
     u = np.repeat(rec.x[0], case.p)
-    return signal.lfilter(dp.a, [1.0], rec.y[0]) - signal.lfilter(num, [1.0], u)
-
-
-def _coloured(case: bc.BenchCase) -> tuple[np.ndarray, np.ndarray, float]:
-    ep = case.effect_params
-    return np.array([1.0, ep["c1"]]), np.array([1.0, -ep["d1"]]), float(ep["snr"])
+    return signal.lfilter(dp.den, [1.0], rec.y[0]) - signal.lfilter(dp.num, [1.0], u)
 
 
 @pytest.mark.parametrize(
@@ -60,7 +54,7 @@ def test_power_is_the_rejection_rate_on_simulated_records(plant: str, seed: int)
     covariance, rejects there on about a third of the records without any coloured noise) and
     the power under the ``armax`` null is low (0.28, 0.18)."""
     case = bc.draw_bench_case(seed, "colored-noise", "linear", plant)
-    n = no.innovations_acf(case, *_coloured(case))[2]
+    n = no.fit_samples(case)
     records = [_innovations(replace(case, seed=1_000_000 + k))[:n] for k in range(DRAWS)]
     for null in no.NULLS:
         predicted = no.noise_shape_power(case, null=null)
@@ -78,7 +72,7 @@ def test_records_without_coloured_noise_are_rejected_at_the_level(plant: str, se
     errors plus :data:`LEVEL`), though the nominal innovations of these plants are a strong
     moving average."""
     case = bc.draw_bench_case(seed, "none", "linear", plant)
-    n = int(case.K * no.FIT_FRACTION) * case.p
+    n = no.fit_samples(case)
     records = [_innovations(replace(case, seed=1_500_000 + k))[:n] for k in range(DRAWS)]
     slack = 3.0 * np.sqrt(0.05 * 0.95 / DRAWS) + LEVEL
     for null in no.NULLS:

@@ -56,14 +56,14 @@ def grid_table(start: int, per_cell: int, plants: tuple[str, ...]) -> None:
         if case.effect != "colored-noise":
             continue
         ep = case.effect_params
-        c, d = np.array([1.0, ep["c1"]]), np.array([1.0, -ep["d1"]])
+        c, d, snr = noise_oracle.coloured_filter(case)
         poles = np.sort(np.roots(bc.nominal_plant(case).discretize(case.T / case.p).a).real)
         line = [
             f"{case.seed} {case.plant:12s} p={case.p} d1={ep['d1']:.3f} "
             f"plant poles {', '.join(f'{v:.3f}' for v in poles[::-1])}:"
         ]
         for null in noise_oracle.NULLS:
-            acf = noise_oracle.innovations_acf(case, c, d, ep["snr"], null=null)
+            acf = noise_oracle.innovations_acf(case, c, d, snr, null=null)
             lam, _ = noise_oracle.noncentrality(*acf)
             power = noise_oracle.noise_shape_power(case, null=null)
             assert power is not None

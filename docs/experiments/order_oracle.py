@@ -41,9 +41,7 @@ def true_plant_fit(case: bc.BenchCase, ctx: nm.Context, u: np.ndarray) -> float:
     """The true plant (the extra lag included) simulated from ``u`` from rest, as the record's
     loop starts, the output gain and offset by least squares on the fit part."""
     dp = bc._scenario(case, bc.case_plant(case), {"name": "linear"}).discrete_plant
-    # the discrete plant's numerator starts one sample after its delay (b1 q^-1 + ...)
-    num = np.concatenate([np.zeros(int(dp.delay) + 1), np.asarray(dp.b, float)])
-    z = signal.lfilter(num, np.asarray(dp.a, float), u)
+    z = signal.lfilter(dp.num, dp.den, u)
     X = np.column_stack([z, np.ones_like(z)])
     coef = np.linalg.lstsq(X[ctx.fit_idx], ctx.y[ctx.fit_idx], rcond=None)[0]
     return core.fit_percent(ctx.y[ctx.val_idx], (X @ coef)[ctx.val_idx])

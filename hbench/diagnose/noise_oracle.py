@@ -83,29 +83,50 @@ def innovations_acf(
     ``w = A v`` of ``case``'s plant, ``p`` and nominal noise with a coloured part ``c / d`` at
     ``snr`` (its standard deviation ``s / snr``); the null's moving-average order (``null``, one
     of :data:`NULLS`, :func:`null_order`); the fit part's fast samples."""
-    plant = bc.nominal_plant(case)
-    dp = plant.discretize(case.T / case.p)
-    A = np.asarray(dp.a, float)
-    cn, dn = bc.noise_filter(plant, dp)
+    A, cn, dn = _nominal(case)
+    n_c = _order(A, cn, null)
     scale = case.effect_params["s"] / snr / filter_norm(c, d, 8000)
     g = autocovariance(np.convolve(cn, A), dn, lags) * case.noise_sigma**2
     g = g + autocovariance(np.convolve(c, A), d, lags) * scale**2
-    return g / g[0], null_order(case, null), int(case.K * FIT_FRACTION) * case.p
+    return g / g[0], n_c, fit_samples(case)
+
+
+def _nominal(case: bc.BenchCase) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(A, C_n, D_n)``: the nominal plant's denominator and its process noise's filter at the
+    fast period of ``case``."""
+    plant = bc.nominal_plant(case)
+    dp = plant.discretize(case.T / case.p)
+    cn, dn = bc.noise_filter(plant, dp)
+    return np.asarray(dp.a, float), np.asarray(cn, float), np.asarray(dn, float)
+
+
+def _order(A: np.ndarray, cn: np.ndarray, null: str) -> int:
+    if null not in NULLS:
+        raise ValueError(f"null must be one of {NULLS}, got {null!r}")
+    if null == "armax":
+        return A.size - 1
+    taps = np.flatnonzero(np.abs(cn) > 0)
+    return int(taps[-1] - taps[0])
 
 
 def null_order(case: bc.BenchCase, null: str = "armax") -> int:
     """The moving-average order ``n_c`` of the innovations under ``null`` (one of
     :data:`NULLS`) for ``case``'s plant and ``p``: the plant's order (``"armax"``), or the span
     of its process noise's nonzero numerator taps (``"process"``: ``na - 1``)."""
-    if null not in NULLS:
-        raise ValueError(f"null must be one of {NULLS}, got {null!r}")
-    plant = bc.nominal_plant(case)
-    dp = plant.discretize(case.T / case.p)
-    if null == "armax":
-        return len(dp.a) - 1
-    cn, _ = bc.noise_filter(plant, dp)
-    taps = np.flatnonzero(np.abs(np.asarray(cn, float)) > 0)
-    return int(taps[-1] - taps[0])
+    A, cn, _ = _nominal(case)
+    return _order(A, cn, null)
+
+
+def fit_samples(case: bc.BenchCase) -> int:
+    """The fast samples of ``case``'s fit part (the diagnosis's default split)."""
+    return int(case.K * FIT_FRACTION) * case.p
+
+
+def coloured_filter(case: bc.BenchCase) -> tuple[np.ndarray, np.ndarray, float]:
+    """``(C_c, D, snr)`` of a ``colored-noise`` case: ``1 + c1 q^-1``, ``1 - d1 q^-1`` and its
+    SNR."""
+    ep = case.effect_params
+    return np.array([1.0, ep["c1"]]), np.array([1.0, -ep["d1"]]), float(ep["snr"])
 
 
 def bartlett(rho: np.ndarray, n_c: int, lags: int) -> np.ndarray:
@@ -140,16 +161,12 @@ def noise_shape_power(case: bc.BenchCase, level: float = 0.05, null: str = "arma
     ``d1``, ``c1`` and ``snr``); None for a case whose effect is not ``colored-noise``."""
     if case.effect != "colored-noise":
         return None
-    ep = case.effect_params
-    c, d = np.array([1.0, ep["c1"]]), np.array([1.0, -ep["d1"]])
-    lam, dof = noncentrality(*innovations_acf(case, c, d, float(ep["snr"]), null=null))
+    lam, dof = noncentrality(*innovations_acf(case, *coloured_filter(case), null=null))
     return power(lam, dof, level)
 
 
 def shape_statistic(w: np.ndarray, n_c: int, lags: int = LAGS) -> tuple[float, float]:
     """The test of the derivation on a series ``w`` of innovations: ``T`` and its chi-square
     p-value with ``lags - n_c`` degrees of freedom."""
-    rho = dstats.acf(w, lags)
-    r = rho[n_c + 1 :]
-    t = float(w.size * r @ np.linalg.solve(bartlett(rho, n_c, lags), r))
-    return t, float(stats.chi2.sf(t, lags - n_c))
+    t, dof = noncentrality(dstats.acf(w, lags), n_c, w.size)
+    return t, float(stats.chi2.sf(t, dof))
