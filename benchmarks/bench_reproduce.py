@@ -4,7 +4,10 @@ the report).
 
 Targets on the idle 2-core machine: 3 s wall for the defaults, 4 s for ``--runs 1000``.
 ``test_cli_startup`` times ``hbench --help`` in the same run: the share of the budget that is
-the interpreter and imports rather than work.
+the interpreter and imports rather than work. ``test_reproduce_without[pdf-N]`` and
+``[figures-N]`` run the same command with its PDFs, or the drawing of every figure, left out
+(:mod:`benchmarks.without_figures`): what the figures cost of the budget, as ratios to
+``test_reproduce[this-N]`` of the same run.
 
 ``test_cross_relation_gram[moments]`` against ``[rows]``: ``sun-liu-sano``'s cross-relation Gram
 for 1000 runs of the paper's example, from the channels' moments (as the method computes it)
@@ -87,6 +90,46 @@ def test_reproduce(benchmark: BenchmarkFixture, tmp_path: Path, which: str, runs
         line += (
             f"; this/baseline: wall {benchmark.extra_info['ratio_to_baseline']:.2f}, "
             f"CPU {benchmark.extra_info['cpu_ratio_to_baseline']:.2f}"
+        )
+    print(line)
+
+
+@pytest.mark.parametrize("runs", sorted(TARGETS))
+@pytest.mark.parametrize("without", ["pdf", "figures"])
+def test_reproduce_without(
+    benchmark: BenchmarkFixture, tmp_path: Path, without: str, runs: int
+) -> None:
+    """``hbench reproduce --runs N`` with its PDFs, or every figure's drawing, left out
+    (:mod:`benchmarks.without_figures`): what the command's figures cost of its time, beside
+    ``test_reproduce[this-N]`` of the same run (``ratio_to_this``, wall and CPU)."""
+    counter = iter(range(100))
+    cpu: list[float] = []
+
+    def setup():
+        out = str(tmp_path / f"r{next(counter)}")
+        args = (without, "reproduce", "--runs", str(runs), "--out", out)
+        return args, {"cpu": cpu, "module": "benchmarks.without_figures"}
+
+    load = os.getloadavg()[0]
+    proc = benchmark.pedantic(hbench, setup=setup, rounds=3, iterations=1)
+    assert "scored cells" in proc.stdout
+    wall, cpu_mean = benchmark.stats.stats.mean, sum(cpu) / len(cpu)
+    benchmark.extra_info.update(
+        wall_seconds=wall,
+        cpu_seconds=cpu_mean,
+        target_seconds=TARGETS[runs],
+        load_average=max(load, os.getloadavg()[0]),
+    )
+    line = (
+        f"\nhbench reproduce --runs {runs} without its {without}: {wall:.2f} s wall, "
+        f"{cpu_mean:.2f} s CPU, load average {benchmark.extra_info['load_average']:.1f}"
+    )
+    if f"this-{runs}" in _seconds:
+        benchmark.extra_info["ratio_to_this"] = wall / _seconds[f"this-{runs}"]
+        benchmark.extra_info["cpu_ratio_to_this"] = cpu_mean / _seconds[f"cpu-this-{runs}"]
+        line += (
+            f"; over the whole command: wall {benchmark.extra_info['ratio_to_this']:.2f}, "
+            f"CPU {benchmark.extra_info['cpu_ratio_to_this']:.2f}"
         )
     print(line)
 

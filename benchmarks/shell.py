@@ -29,17 +29,22 @@ def tree_of(which: str) -> str | None:
 
 
 def hbench(
-    *args: str, tree: str | None = None, cpu: list[float] | None = None
+    *args: str,
+    tree: str | None = None,
+    cpu: list[float] | None = None,
+    module: str = "hbench.cli",
 ) -> subprocess.CompletedProcess[str]:
     """``python -m hbench.cli ARGS`` with this environment's interpreter; ``tree``: another
     revision's sources (and plugins) ahead of this one's; ``cpu``: the CPU seconds of the
-    command's processes are appended to it. Fails on a non-zero exit."""
+    command's processes are appended to it; ``module``: another module that runs the command
+    (e.g. ``benchmarks.without_figures``, from the working directory). Fails on a non-zero
+    exit."""
     before = cpu_children()
     env = dict(os.environ)
     if tree is not None:  # another revision's sources ahead of this one's
         env["PYTHONPATH"] = os.pathsep.join([tree, os.path.join(tree, "plugins")])
     proc = subprocess.run(  # from the tree: ``-m`` puts the working directory first
-        [sys.executable, "-m", "hbench.cli", *args],
+        [sys.executable, "-m", module, *args],
         capture_output=True,
         text=True,
         env=env,

@@ -209,22 +209,30 @@ def test_selection_at_the_edge_of_a2(delay):
     assert np.sum((est.na == 2) & (est.nb == 2) & (est.tau == delay % 3)) >= 17
 
 
-def test_wang_lsm_inverse_option_puts_its_estimates_in_the_direct_inverse():
-    """``wang-lsm`` with ``inverse`` set: the same A and B as eq. (27)'s, the inner signal from
-    the direct inverse (Table 5's F_INV), the same as the oracle's route with the true A, B."""
+@pytest.mark.parametrize("method", ["wang-lsm", "wang-iv", "wang"])
+def test_wang_inverse_option_puts_its_estimates_in_the_direct_inverse(method):
+    """A Wang method with ``inverse`` set: the same A and B as with eq. (27), the inner signal
+    from the direct inverse (Table 5's F_INV); noise-free, the true inner signal exactly."""
     record, truth = sim(runs=2, seed=5, noise__sigma2=1e-3)
     opts = TRUE_STRUCTURE
-    ls27 = run_method("wang-lsm", record, truth, options=opts)
-    inv = run_method("wang-lsm", record, truth, options=opts, inverse="auto")
+    ls27 = run_method(method, record, truth, options=opts)
+    inv = run_method(method, record, truth, options=opts, inverse="auto")
     for key, value in ls27.params().items():
         np.testing.assert_array_equal(inv.params()[key], value, err_msg=key)
     assert inv.info["inverse"] == {"direct": 2} and ls27.info["inverse"] == {"ls27": 2}
     assert not np.allclose(inv.U, ls27.U, equal_nan=True)
-    assert "inverse" not in registry().get("identifiers", "wang-lsm")().options()
+    assert "inverse" not in registry().get("identifiers", method)().options()
+    record, truth = sim(runs=2, seed=5, noise__sigma2=0.0)
+    exact = run_method(method, record, truth, options=opts, inverse="auto")
+    U = exact.U / truth.plant.gain
+    m = np.isfinite(U)
+    assert m.sum(axis=1).min() > 0.9 * U.shape[1]
+    np.testing.assert_allclose(U[m], truth.U[m], rtol=0, atol=1e-8 * np.abs(truth.U).max())
 
 
-def test_wang_lsm_inverse_option_is_checked():
+@pytest.mark.parametrize("method", ["wang-lsm", "wang-iv", "wang"])
+def test_wang_inverse_option_is_checked(method):
     from hbench.errors import InputError
 
-    with pytest.raises(InputError, match="inverse must be one of"):
-        registry().get("identifiers", "wang-lsm")(inverse="sideways")
+    with pytest.raises(InputError, match=f"{method} inverse must be one of"):
+        registry().get("identifiers", method)(inverse="sideways")

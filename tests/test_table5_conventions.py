@@ -1,6 +1,7 @@
 """Table 5's scoring conventions of ``hbench reproduce --investigate``: which runs the fitness
-averages (``Config.fitness_runs``), the gain-centred scaling, F_LSM from the paper's steps
-(``Config.f_lsm``), and the paper's own Table 4 rows scored on our loop (``published_row``)."""
+averages (``Config.fitness_runs``), the gain-centred scaling, the bounds' own scaling
+(``Config.fitness_bound``), F_LSM and F_INV from the paper's steps (``Config.f_lsm``,
+``Config.f_inv``), and the paper's own Table 4 rows scored on our loop (``published_row``)."""
 
 from __future__ import annotations
 
@@ -84,6 +85,38 @@ def test_fitness_runs_exact_on_hand_made_values():
     t4 = base.index.get_level_values("table") == 4
     pd.testing.assert_frame_equal(base[t4], clip[t4])
     pd.testing.assert_frame_equal(base[t4], keep[t4])
+
+
+def test_fitness_bound_scores_the_f0_columns_alone():
+    """Config.fitness_bound: the F0 columns read their own scaling's quantity, F_LSM and F_INV
+    keep ``fitness``'s; without it every column reads ``fitness``'s."""
+    ls = [85.0, 0.0, 60.0, 30.0]
+    rows = pd.concat(
+        [
+            _rows(),
+            _tidy(1e-2, "wang-lsm", "fitness_ls", ls),
+            _tidy(1e-2, "wang-lsm-inv", "fitness_ls", [40.0, -50.0, 15.0, 25.0]),
+            _tidy(1e-2, "oracle", "fitness_ls", [91.0, 0.0, 71.0, 76.0]),
+        ],
+        ignore_index=True,
+    )
+    both = _cells(pc.compare_tables45(rows, pl.Config(fitness="ls")))
+    split = _cells(pc.compare_tables45(rows, pl.Config(fitness="ls", fitness_bound="gain")))
+    f, inv, f0 = (
+        (5, 1e-2, "F", "wang-lsm"),
+        (5, 1e-2, "F", "wang-lsm-inv"),
+        (5, 1e-2, "F0", "oracle"),
+    )
+    assert both.loc[f, "ours"] == split.loc[f, "ours"] == pytest.approx(np.mean(ls))
+    assert both.loc[inv, "ours"] == split.loc[inv, "ours"] == pytest.approx(7.5)
+    assert both.loc[f0, "ours"] == pytest.approx(59.5)
+    assert split.loc[f0, "ours"] == pytest.approx(np.mean(F0))  # the true gain's
+    assert pl.Config(fitness="ls", fitness_bound="gain").bound_fitness == "gain"
+    assert pl.Config(fitness="ls").bound_fitness == "ls"
+    assert pl.Config(fitness_bound="gain-centred").custom_loop
+    for bad in ({"fitness": "none"}, {"fitness_bound": "median"}):
+        with pytest.raises(InputError, match="must be one of"):
+            pl.Config(**bad)
 
 
 def test_fitness_runs_helper_keeps_missing_runs_missing():
@@ -176,6 +209,39 @@ def test_the_new_alternatives_are_declared():
     assert "f-lsm-step-ii" not in pi.POST_PROCESSED  # wang-step-ii is not among the defaults
     assert "wang" in pl.ALL_METHODS and "wang-step-ii" not in pl.ALL_METHODS
     assert "fitness-gain-centred" not in pi.POST_PROCESSED
+    # F_LSM and F_INV from wang's estimates (F_INV's method runs for that alternative only)
+    assert alts["f-steps-ii-iv"].f_lsm == "wang" and alts["f-steps-ii-iv"].f_inv == "wang-inv"
+    assert "wang-inv" not in pl.ALL_METHODS and "f-steps-ii-iv" not in pi.POST_PROCESSED
+    ls = alts["fitness-ls-estimates"]
+    assert (ls.fitness, ls.bound_fitness) == ("ls", "gain") and ls.label in pi.POST_PROCESSED
+    both = alts["f-steps-ii-iv+fitness-ls-estimates"]
+    assert (both.f_lsm, both.f_inv, both.fitness, both.bound_fitness) == (
+        "wang",
+        "wang-inv",
+        "ls",
+        "gain",
+    )
+
+
+def test_the_inverse_variants_are_their_methods_with_the_direct_inverse():
+    """``wang-lsm-inv`` is ``wang-lsm``, ``wang-inv`` is ``wang``, each with its method's
+    options under the config and ``inverse='auto'``."""
+    config = pl.Config(pooled=False, eq15="modulus")
+    methods = pl.make_methods(config, ["wang-lsm", "wang-lsm-inv", "wang", "wang-inv"])
+    for name, base in (("wang-lsm-inv", "wang-lsm"), ("wang-inv", "wang")):
+        assert methods[name].name == base
+        want = {**methods[base].options(), "inverse": "auto"}
+        assert methods[name].options() == want
+    assert methods["wang-lsm-inv"].options()["eq15"] == "modulus"
+    assert "select_a" in methods["wang-inv"].options()
+    assert methods["wang-inv"].options()["pooled"] is False
+
+
+def test_the_scalings_are_named_once_for_the_config():
+    from hbench.bench.metrics import SCALINGS
+
+    assert pl.FITNESS_SCALINGS == SCALINGS
+    assert set(pc.FITNESS_QUANTITY) == set(SCALINGS)
 
 
 def test_explained_cells_give_each_alternatives_z():

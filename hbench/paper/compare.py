@@ -144,7 +144,7 @@ def compare_tables45(rows: Any, config: Config = Config()) -> Any:
 
     lv = rows if isinstance(rows, LevelValues) else LevelValues.of(rows)
     values = lv.values
-    fq = FITNESS_QUANTITY[config.fitness]
+    fq, fq0 = FITNESS_QUANTITY[config.fitness], FITNESS_QUANTITY[config.bound_fitness]
     out = []
     for cell in paper_cells():
         if cell.table not in (4, 5):
@@ -163,7 +163,10 @@ def compare_tables45(rows: Any, config: Config = Config()) -> Any:
                 method = config.f_lsm_method
             elif method == "wang-lsm":
                 method = config.lsm
-            quantity = fq if cell.table == 5 else cell.column
+            if cell.table == 5:  # the F0 columns: the bounds' own scaling, where given
+                quantity = fq0 if cell.column == "F0" else fq
+            else:
+                quantity = cell.column
             vals = values.get((cell.row, method, quantity), np.empty(0))
             if cell.table == 5:
                 vals = fitness_runs(vals, config.fitness_runs)

@@ -75,6 +75,7 @@ POST_PROCESSED = {
     "fitness-ls",
     "fitness-clip0",
     "fitness-nonnegative-runs",
+    "fitness-ls-estimates",
     "f-lsm-steps-ii-iv",
     "snr-power",
     "snr-db",

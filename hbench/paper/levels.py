@@ -54,6 +54,12 @@ ALL_METHODS: tuple[str, ...] = (
 TABLE_METHODS: tuple[str, ...] = ("wang-lsm", "wang-iv", "wang-lsm-inv", "oracle", "oracle-inv")
 
 
+#: Names the reproduction gives a method's estimates put in the direct inverse (``inverse='auto'``)
+#: instead of eq. (27): Table 5's F_INV from ``wang-lsm``'s (the default) or from ``wang``'s, the
+#: paper's steps (ii) and (iv) (``Config.f_inv``).
+INVERSE_VARIANTS: dict[str, str] = {"wang-lsm-inv": "wang-lsm", "wang-inv": "wang"}
+
+
 #: The paper's steps (ii) and (iv) one at a time: ``wang`` with one choice left to the LSM
 #: (names the reproduction gives these variants; ``wang`` makes both choices).
 WANG_VARIANTS: dict[str, dict[str, str]] = {
@@ -67,6 +73,12 @@ WANG_VARIANTS: dict[str, dict[str, str]] = {
 FITNESS_RUNS: tuple[str, ...] = ("all", "clip0", "nonnegative")
 
 
+#: The scalings Table 5 can be scored with (``Config.fitness``, ``Config.fitness_bound``):
+#: :data:`hbench.bench.metrics.SCALINGS`, named here so that a ``Config`` is checked without
+#: importing the metrics (numpy) at start-up.
+FITNESS_SCALINGS: tuple[str, ...] = ("gain", "ls", "ls-affine", "gain-centred")
+
+
 @dataclass(frozen=True)
 class Config:
     """One reproduction's conventions (the default, or an alternative of ``--investigate``).
@@ -74,13 +86,16 @@ class Config:
     ``overrides`` are dotted scenario keys (``("reference.band", [0, 0.25])``); ``reference``
     replaces the whole reference spec when given. ``fitness`` is the scaling of Table 5
     (``gain``, ``ls``, ``ls-affine``, ``gain-centred``: :mod:`hbench.bench.metrics`),
+    ``fitness_bound``, when given, the scaling of its F0 columns alone (the true parameters'
+    bounds; F_LSM and F_INV keep ``fitness``),
     ``fitness_runs`` which per-run fitnesses Table 5 averages (:data:`FITNESS_RUNS`: ``all``;
     ``clip0``, each floored at 0; ``nonnegative``, the runs with a fitness >= 0 only), ``snr``
     the definition compared with the SNR column (``norm``: ||y0||/||v||, ``power``: its square,
     ``db``: 20 log10), ``warmup`` seconds simulated before the 500 s record and discarded.
     ``lsm`` is the method behind Table 4's LSM rows and Table 5's F_LSM (``wang`` or a
     :data:`WANG_VARIANTS` name for the paper's steps (ii), (iv)); ``f_lsm``, when given, the
-    method behind F_LSM alone (Table 4's LSM rows keep ``lsm``).
+    method behind F_LSM alone (Table 4's LSM rows keep ``lsm``); ``f_inv`` the method behind
+    F_INV (``wang-lsm-inv``, or another of :data:`INVERSE_VARIANTS`, or ``bai-fu``).
     ``eq15`` is ``wang-lsm``'s reading of eq. (15) where it has no real root (``clip``,
     ``real``, ``modulus``, ``zero``: :func:`hbench.ident.polyphase.noise_variance`); ``table2`` how
     Table 2's rows are read (``as-printed``, or ``swapped``: its l = 1 and l = 2 exchanged).
@@ -98,12 +113,19 @@ class Config:
     eq15: str = "clip"
     table2: str = "as-printed"
     fitness: str = "gain"
+    fitness_bound: str | None = None
     fitness_runs: str = "all"
     f_lsm: str | None = None
     snr: str = "norm"
     warmup: float = 0.0
 
     def __post_init__(self) -> None:
+        for key in ("fitness", "fitness_bound"):
+            value = getattr(self, key)
+            if value not in FITNESS_SCALINGS and not (key == "fitness_bound" and value is None):
+                raise InputError(
+                    f"{key} must be one of {', '.join(FITNESS_SCALINGS)}, got {value!r}"
+                )
         if self.fitness_runs not in FITNESS_RUNS:
             raise InputError(
                 f"fitness_runs must be one of {', '.join(FITNESS_RUNS)}, got {self.fitness_runs!r}"
@@ -112,7 +134,13 @@ class Config:
     @property
     def custom_loop(self) -> bool:
         """True when the runner's rows cannot express the alternative (own scoring loop)."""
-        return self.fitness in ("ls-affine", "gain-centred") or self.warmup > 0
+        own = ("ls-affine", "gain-centred")
+        return self.fitness in own or self.fitness_bound in own or self.warmup > 0
+
+    @property
+    def bound_fitness(self) -> str:
+        """The scaling of Table 5's F0 columns: ``fitness_bound``, or ``fitness``."""
+        return self.fitness_bound if self.fitness_bound is not None else self.fitness
 
     @property
     def f_lsm_method(self) -> str:
@@ -131,6 +159,7 @@ class Config:
             "eq15": self.eq15,
             "table2": self.table2,
             "fitness": self.fitness,
+            "fitness_bound": self.fitness_bound,
             "fitness_runs": self.fitness_runs,
             "f_lsm": self.f_lsm,
             "snr": self.snr,
@@ -180,22 +209,27 @@ def _lsm_options(config: Config) -> dict[str, Any]:
     return {"pooled": config.pooled, "eq15": config.eq15}
 
 
+def _wang_options(config: Config, name: str) -> dict[str, Any]:
+    """A Wang method's options under ``config`` (``wang-lsm``'s with its ``eq15``)."""
+    return _lsm_options(config) if name == "wang-lsm" else {"pooled": config.pooled}
+
+
 def make_methods(config: Config, names: Sequence[str]) -> dict[str, Any]:
-    """Instantiated methods; the Wang methods with the config's ``pooled``."""
+    """Instantiated methods; the Wang methods with the config's ``pooled`` (and ``eq15``), an
+    inverse variant with its method's options and ``inverse='auto'``."""
     from hbench.bench.runner import methods_from_names
 
     out: dict[str, Any] = {}
     for name in names:
-        if name == "wang-lsm-inv":  # the LSM estimates in the direct inverse (F_INV)
-            kw = {"pooled": config.pooled, "inverse": "auto"}
-            out[name] = methods_from_names(["wang-lsm"], {"wang-lsm": kw})["wang-lsm"]
+        if name in INVERSE_VARIANTS:  # the estimates in the direct inverse (F_INV)
+            base = INVERSE_VARIANTS[name]
+            kw = {**_wang_options(config, base), "inverse": "auto"}
+            out[name] = methods_from_names([base], {base: kw})[base]
         elif name in WANG_VARIANTS:
             kw = {"pooled": config.pooled, **WANG_VARIANTS[name]}
             out[name] = methods_from_names(["wang"], {"wang": kw})["wang"]
-        elif name == "wang-lsm":
-            out.update(methods_from_names([name], {name: _lsm_options(config)}))
-        elif name in ("wang-iv", "wang"):
-            out.update(methods_from_names([name], {name: {"pooled": config.pooled}}))
+        elif name in ("wang-lsm", "wang-iv", "wang"):
+            out.update(methods_from_names([name], {name: _wang_options(config, name)}))
         else:
             out.update(methods_from_names([name]))
     return out

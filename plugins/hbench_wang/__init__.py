@@ -40,6 +40,14 @@ def _check_instruments(method: str, m: int, lag0: int) -> None:
 
 
 class _Wang(Identifier):
+    """What the three methods share: the selection rule, ``pooled`` and ``inverse``.
+
+    ``inverse``: ``None`` (default) for eq. (27); one of :data:`hbench.ident.identifiers.INVERSES`
+    for the direct inverse ``A(q)/B(q) y`` down-sampled by p instead (Bezout combiner where B is
+    not minimum phase, with ``auto``): the method's estimates in the direct inverse, as Table 5's
+    F_INV (:func:`hbench.ident.identifiers.inverse_inner`). A and B are the same either way.
+    """
+
     def __init__(
         self,
         pooled: bool = True,
@@ -47,20 +55,29 @@ class _Wang(Identifier):
         tol_na: float = 0.10,
         tol_tau: float = 0.25,
         tol_nb: float = 0.5,
+        inverse: str | None = None,
     ) -> None:
+        if inverse is not None and inverse not in INVERSES:
+            raise InputError(
+                f"{self.name} inverse must be one of {', '.join(INVERSES)}, got {inverse!r}"
+            )
         self.pooled = bool(pooled)
         self.rule = SelectionRule(
             method=selection, tol_na=float(tol_na), tol_tau=float(tol_tau), tol_nb=float(tol_nb)
         )
+        self.inverse = inverse
 
     def options(self) -> dict[str, Any]:
-        return {
+        out = {
             "pooled": self.pooled,
             "selection": self.rule.method,
             "tol_na": self.rule.tol_na,
             "tol_tau": self.rule.tol_tau,
             "tol_nb": self.rule.tol_nb,
         }
+        if self.inverse is not None:  # eq. (27) by default, as the paper's
+            out["inverse"] = self.inverse
+        return out
 
     def _blind_fit(
         self,
@@ -69,16 +86,16 @@ class _Wang(Identifier):
         denominator,
         numerator,
         selector=None,
-        inner=inner_ls,
     ) -> Estimate:
-        """:func:`hbench.ident.identifiers.blind_fit` with this method's name, options and rule."""
+        """:func:`hbench.ident.identifiers.blind_fit` with this method's name, options, rule and
+        inner-signal step (eq. (27), or the direct inverse when ``inverse`` is set)."""
         return blind_fit(
             self.name,
             record,
             options,
             denominator=denominator,
             numerator=numerator,
-            inner=inner,
+            inner=inner_ls if self.inverse is None else inverse_inner(self.inverse),
             pooled=self.pooled,
             rule=self.rule,
             info=self.options(),
@@ -127,10 +144,9 @@ class WangLSM(_Wang):
       ``modulus``, ``zero``: :func:`hbench.ident.polyphase.noise_variance`).
       It happens in the selection tables, on active phases (wrong shifts: Table 1's tau = 4
       column) and at over-fitted orders; the fit at the paper's structure has a real root.
-    * ``inverse``: ``None`` (default) for eq. (27); one of
-      :data:`hbench.ident.identifiers.INVERSES` for the direct inverse ``A(q)/B(q) y`` down-sampled
-      by p instead (Bezout combiner where B is not minimum phase, with ``auto``): the LSM estimates
-      in the direct inverse, Table 5's F_INV (:func:`hbench.ident.identifiers.inverse_inner`).
+    * ``inverse``: U by the direct inverse ``A(q)/B(q) y`` instead of eq. (27) (``auto``: Bezout
+      combiner where B is not minimum phase): the LSM's estimates as Table 5's F_INV; the same
+      option as ``wang-iv``'s and ``wang``'s (:func:`hbench.ident.identifiers.inverse_inner`).
 
     Consistent for ARX noise ``e / A(q)``; biased for coloured equation noise (Table 4's LSM rows).
     """
@@ -138,21 +154,14 @@ class WangLSM(_Wang):
     name: ClassVar[str] = "wang-lsm"
     summary: ClassVar[str] = "Wang et al. 2007: bias-compensated LSM (eqs. 14, 15, 18, 27)"
 
-    def __init__(self, eq15: str = "clip", inverse: str | None = None, **kwargs: Any) -> None:
+    def __init__(self, eq15: str = "clip", **kwargs: Any) -> None:
         super().__init__(**kwargs)
         if eq15 not in EQ15_FITS:
             raise InputError(f"wang-lsm eq15 must be one of {', '.join(EQ15_FITS)}, got {eq15!r}")
-        if inverse is not None and inverse not in INVERSES:
-            raise InputError(
-                f"wang-lsm inverse must be one of {', '.join(INVERSES)}, got {inverse!r}"
-            )
-        self.eq15, self.inverse = eq15, inverse
+        self.eq15 = eq15
 
     def options(self) -> dict[str, Any]:
-        out = {**super().options(), "eq15": self.eq15}
-        if self.inverse is not None:  # eq. (27) by default, as the paper's LSM
-            out["inverse"] = self.inverse
-        return out
+        return {**super().options(), "eq15": self.eq15}
 
     def identify(
         self, record: Record, options: IdentifyOptions, truth: Truth | None = None
@@ -160,8 +169,7 @@ class WangLSM(_Wang):
         def numerator(dw, tau, nb, sigma2, idx):
             return pp.b_lsm(dw, record.p, tau, nb, sigma2, t_min=pp.first_valid(dw))
 
-        inner = inner_ls if self.inverse is None else inverse_inner(self.inverse)
-        return self._blind_fit(record, options, EQ15_FITS[self.eq15], numerator, inner=inner)
+        return self._blind_fit(record, options, EQ15_FITS[self.eq15], numerator)
 
 
 class WangIV(_Wang):
@@ -174,7 +182,8 @@ class WangIV(_Wang):
     ``zeta(k) = [r(k - lag0), ..., r(k - lag0 - m + 1)]`` with the paper's ``lag0 = 1``; the
     extended IV solution uses the Moore-Penrose pseudo-inverse when ``m > na``. Consistent under
     coloured noise as long as r is independent of it (A1); larger variance than the LSM. The noise
-    variance reported is half the mean square of the quiet-phase residual.
+    variance reported is half the mean square of the quiet-phase residual. ``inverse``: U by the
+    direct inverse instead of eq. (27), as ``wang-lsm``'s.
     """
 
     name: ClassVar[str] = "wang-iv"
@@ -243,7 +252,8 @@ class WangPaper(_Wang):
     one estimator throughout (``select_a="lsm", select_b="lsm"`` gives ``wang-lsm``'s numbers).
     What was chosen is kept per run in ``Estimate.criteria``: ``a_from_iv`` (runs,),
     ``aic`` (runs, 2: LSM, IVM), ``b_from_iv`` and ``v_eiv_lsm``, ``v_eiv_iv`` (runs, nb_max).
-    Instruments as ``wang-iv``'s (``m``, ``lag0``).
+    Instruments as ``wang-iv``'s (``m``, ``lag0``); ``inverse``: U from the chosen estimates by the
+    direct inverse instead of eq. (27), as ``wang-lsm``'s.
     """
 
     name: ClassVar[str] = "wang"
