@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -46,29 +47,40 @@ def test_cli_startup(benchmark: BenchmarkFixture) -> None:
     _seconds["startup"] = benchmark.stats.stats.mean
 
 
-@pytest.mark.parametrize("runs", sorted(TARGETS))
-@pytest.mark.parametrize("which", ["this", "baseline"])
-def test_reproduce(benchmark: BenchmarkFixture, tmp_path: Path, which: str, runs: int) -> None:
-    tree = tree_of(which)
+def _timed(
+    benchmark: BenchmarkFixture, tmp_path: Path, runs: int, lead: tuple[str, ...], **kw: Any
+) -> tuple[float, float]:
+    """``hbench reproduce --runs runs`` timed in three rounds (``lead``: arguments before the
+    command's, ``kw``: :func:`benchmarks.shell.hbench`'s); records its wall and CPU seconds, its
+    target and the load average in ``extra_info`` and returns the mean wall and CPU seconds."""
     counter = iter(range(100))
     cpu: list[float] = []
 
     def setup():
         out = str(tmp_path / f"r{next(counter)}")
-        return ("reproduce", "--runs", str(runs), "--out", out), {"tree": tree, "cpu": cpu}
+        return (*lead, "reproduce", "--runs", str(runs), "--out", out), {**kw, "cpu": cpu}
 
     load = os.getloadavg()[0]
     proc = benchmark.pedantic(hbench, setup=setup, rounds=3, iterations=1)
     assert "scored cells" in proc.stdout
-    wall = benchmark.stats.stats.mean
-    key = f"{which}-{runs}"
-    _seconds[key], _seconds[f"cpu-{key}"] = wall, sum(cpu) / len(cpu)
+    wall, cpu_mean = benchmark.stats.stats.mean, sum(cpu) / len(cpu)
     benchmark.extra_info.update(
         wall_seconds=wall,
-        cpu_seconds=_seconds[f"cpu-{key}"],
+        cpu_seconds=cpu_mean,
         target_seconds=TARGETS[runs],
         load_average=max(load, os.getloadavg()[0]),
     )
+    return wall, cpu_mean
+
+
+@pytest.mark.parametrize("runs", sorted(TARGETS))
+@pytest.mark.parametrize("which", ["this", "baseline"])
+def test_reproduce(benchmark: BenchmarkFixture, tmp_path: Path, which: str, runs: int) -> None:
+    key = f"{which}-{runs}"
+    _seconds[key], _seconds[f"cpu-{key}"] = _timed(
+        benchmark, tmp_path, runs, (), tree=tree_of(which)
+    )
+    wall = _seconds[key]
     other_key = f"{'this' if which == 'baseline' else 'baseline'}-{runs}"
     if other_key in _seconds:
         this_key = f"this-{runs}"
@@ -102,23 +114,8 @@ def test_reproduce_without(
     """``hbench reproduce --runs N`` with its PDFs, or every figure's drawing, left out
     (:mod:`benchmarks.without_figures`): what the command's figures cost of its time, beside
     ``test_reproduce[this-N]`` of the same run (``ratio_to_this``, wall and CPU)."""
-    counter = iter(range(100))
-    cpu: list[float] = []
-
-    def setup():
-        out = str(tmp_path / f"r{next(counter)}")
-        args = (without, "reproduce", "--runs", str(runs), "--out", out)
-        return args, {"cpu": cpu, "module": "benchmarks.without_figures"}
-
-    load = os.getloadavg()[0]
-    proc = benchmark.pedantic(hbench, setup=setup, rounds=3, iterations=1)
-    assert "scored cells" in proc.stdout
-    wall, cpu_mean = benchmark.stats.stats.mean, sum(cpu) / len(cpu)
-    benchmark.extra_info.update(
-        wall_seconds=wall,
-        cpu_seconds=cpu_mean,
-        target_seconds=TARGETS[runs],
-        load_average=max(load, os.getloadavg()[0]),
+    wall, cpu_mean = _timed(
+        benchmark, tmp_path, runs, (without,), module="benchmarks.without_figures"
     )
     line = (
         f"\nhbench reproduce --runs {runs} without its {without}: {wall:.2f} s wall, "

@@ -240,8 +240,9 @@ def test_the_inverse_variants_are_their_methods_with_the_direct_inverse():
 def test_the_scalings_are_named_once_for_the_config():
     from hbench.bench.metrics import SCALINGS
 
-    assert pl.FITNESS_SCALINGS == SCALINGS
-    assert set(pc.FITNESS_QUANTITY) == set(SCALINGS)
+    assert tuple(pl.FITNESS_QUANTITY) == SCALINGS
+    assert pc.FITNESS_QUANTITY is pl.FITNESS_QUANTITY
+    assert pl.RUNNER_SCALINGS < set(SCALINGS)
 
 
 def test_explained_cells_give_each_alternatives_z():

@@ -11,7 +11,7 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from hbench.errors import InputError
-from hbench.paper.levels import FITNESS_RUNS, Config
+from hbench.paper.levels import FITNESS_QUANTITY, FITNESS_RUNS, Config
 from hbench.tables.published import (
     CSV_COLUMNS,
     Z_LIMIT,
@@ -19,13 +19,6 @@ from hbench.tables.published import (
     paper_cells,
     z_score,
 )
-
-FITNESS_QUANTITY = {
-    "gain": "fitness",
-    "ls": "fitness_ls",
-    "ls-affine": "fitness_ls_affine",
-    "gain-centred": "fitness_gain_centred",
-}
 
 
 def fitness_runs(values: Any, which: str = "all") -> Any:

@@ -73,10 +73,19 @@ WANG_VARIANTS: dict[str, dict[str, str]] = {
 FITNESS_RUNS: tuple[str, ...] = ("all", "clip0", "nonnegative")
 
 
-#: The scalings Table 5 can be scored with (``Config.fitness``, ``Config.fitness_bound``):
-#: :data:`hbench.bench.metrics.SCALINGS`, named here so that a ``Config`` is checked without
-#: importing the metrics (numpy) at start-up.
-FITNESS_SCALINGS: tuple[str, ...] = ("gain", "ls", "ls-affine", "gain-centred")
+#: The scalings Table 5 can be scored with (``Config.fitness``, ``Config.fitness_bound``: those
+#: of :data:`hbench.bench.metrics.SCALINGS`, named here so that a ``Config`` is checked without
+#: importing the metrics, numpy, at start-up) and the quantity of the rows each one reads.
+FITNESS_QUANTITY: dict[str, str] = {
+    "gain": "fitness",
+    "ls": "fitness_ls",
+    "ls-affine": "fitness_ls_affine",
+    "gain-centred": "fitness_gain_centred",
+}
+
+
+#: The scalings whose quantities the runner's rows carry; the others need their own scoring loop.
+RUNNER_SCALINGS = frozenset({"gain", "ls"})
 
 
 @dataclass(frozen=True)
@@ -120,11 +129,10 @@ class Config:
     warmup: float = 0.0
 
     def __post_init__(self) -> None:
-        for key in ("fitness", "fitness_bound"):
-            value = getattr(self, key)
-            if value not in FITNESS_SCALINGS and not (key == "fitness_bound" and value is None):
+        for key, value in (("fitness", self.fitness), ("fitness_bound", self.bound_fitness)):
+            if value not in FITNESS_QUANTITY:
                 raise InputError(
-                    f"{key} must be one of {', '.join(FITNESS_SCALINGS)}, got {value!r}"
+                    f"{key} must be one of {', '.join(FITNESS_QUANTITY)}, got {value!r}"
                 )
         if self.fitness_runs not in FITNESS_RUNS:
             raise InputError(
@@ -134,8 +142,8 @@ class Config:
     @property
     def custom_loop(self) -> bool:
         """True when the runner's rows cannot express the alternative (own scoring loop)."""
-        own = ("ls-affine", "gain-centred")
-        return self.fitness in own or self.fitness_bound in own or self.warmup > 0
+        scalings = {self.fitness, self.bound_fitness}
+        return not scalings <= RUNNER_SCALINGS or self.warmup > 0
 
     @property
     def bound_fitness(self) -> str:
@@ -226,7 +234,7 @@ def make_methods(config: Config, names: Sequence[str]) -> dict[str, Any]:
             kw = {**_wang_options(config, base), "inverse": "auto"}
             out[name] = methods_from_names([base], {base: kw})[base]
         elif name in WANG_VARIANTS:
-            kw = {"pooled": config.pooled, **WANG_VARIANTS[name]}
+            kw = {**_wang_options(config, "wang"), **WANG_VARIANTS[name]}
             out[name] = methods_from_names(["wang"], {"wang": kw})["wang"]
         elif name in ("wang-lsm", "wang-iv", "wang"):
             out.update(methods_from_names([name], {name: _wang_options(config, name)}))
